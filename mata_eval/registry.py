@@ -1,0 +1,91 @@
+"""Plugin discovery: every module named in the ``mata_eval`` entry-point group is imported and
+registered with pluggy. Built-in plugins come in the same way as third-party ones. A module that
+fails to import is recorded (name, package, error) and the others keep working."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+import importlib.metadata as md
+import traceback
+
+import pluggy
+
+from .hooks import KINDS, PROJECT, PluginSpecs
+
+
+@dataclasses.dataclass(frozen=True)
+class PluginEntry:
+    kind: str
+    name: str
+    cls: type
+    package: str
+    description: str
+
+
+@dataclasses.dataclass(frozen=True)
+class LoadFailure:
+    entry_point: str
+    package: str
+    error: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Registry:
+    plugins: dict[str, dict[str, PluginEntry]]  # kind -> name -> entry
+    failures: tuple[LoadFailure, ...]
+
+    def get(self, kind: str, name: str) -> PluginEntry:
+        """The plugin ``name`` of ``kind``; KeyError lists the names that exist."""
+        try:
+            return self.plugins[kind][name]
+        except KeyError:
+            known = ", ".join(sorted(self.plugins.get(kind, {}))) or "(none)"
+            hint = "".join(f"\n  note: {f.entry_point} ({f.package}) failed to load: {f.error}"
+                           for f in self.failures)
+            raise KeyError(f"unknown {kind} {name!r}; available: {known}{hint}") from None
+
+    def names(self, kind: str) -> list[str]:
+        return sorted(self.plugins.get(kind, {}))
+
+
+def describe_line(cls: type) -> str:
+    doc = (cls.__doc__ or "").strip()
+    return doc.splitlines()[0] if doc else ""
+
+
+@functools.lru_cache(maxsize=1)
+def load_registry() -> Registry:
+    """Discover all plugins once per process."""
+    pm = pluggy.PluginManager(PROJECT)
+    pm.add_hookspecs(PluginSpecs)
+    failures: list[LoadFailure] = []
+    packages: dict[int, str] = {}
+    for ep in sorted(md.entry_points(group=PROJECT), key=lambda e: e.name):
+        package = ep.dist.name if ep.dist is not None else "?"
+        try:
+            module = importlib.import_module(ep.value.split(":")[0])
+        except Exception as exc:  # a broken plugin must not take the others down
+            last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+            failures.append(LoadFailure(ep.name, package, last))
+            continue
+        if pm.is_registered(module):
+            continue
+        pm.register(module, name=f"{package}:{ep.name}")
+        packages[id(module)] = package
+
+    plugins: dict[str, dict[str, PluginEntry]] = {kind: {} for kind in KINDS}
+    for kind, hook_name in KINDS.items():
+        hook = getattr(pm.hook, hook_name)
+        for impl in hook.get_hookimpls():
+            package = packages.get(id(impl.plugin), "?")
+            try:
+                classes = impl.function() or []
+            except Exception as exc:
+                failures.append(LoadFailure(impl.plugin_name, package, f"{hook_name}() raised {exc!r}"))
+                continue
+            for cls in classes:
+                name = getattr(cls, "name", cls.__name__)
+                plugins[kind][name] = PluginEntry(kind, name, cls, package, describe_line(cls))
+    return Registry(plugins, tuple(failures))

@@ -1,0 +1,132 @@
+"""Core value types (DESIGN.md, "Core types"). Plain frozen dataclasses, no behaviour beyond
+conversions.
+
+Conventions used everywhere in mata-eval:
+- boxes are ``x, y, w, h`` in float pixels with a top-left origin (UAV123 / pysot-toolkit files);
+- images are ``numpy.uint8`` arrays of shape (H, W, 3) in **BGR** order, as ``cv2.imread`` returns;
+- times are seconds on the camera clock, ``t = k / fps`` for frame ``k``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Generic, Mapping, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Box:
+    """Axis-aligned box ``x, y, w, h`` (pixels, top-left origin)."""
+
+    x: float
+    y: float
+    w: float
+    h: float
+
+    @property
+    def cx(self) -> float:
+        return self.x + self.w / 2.0
+
+    @property
+    def cy(self) -> float:
+        return self.y + self.h / 2.0
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return (self.cx, self.cy)
+
+    def corners(self) -> tuple[float, float, float, float]:
+        """``(x_tl, y_tl, x_br, y_br)``, the EKF's measurement layout (paper eq. ekf_x_z)."""
+        return (self.x, self.y, self.x + self.w, self.y + self.h)
+
+    @classmethod
+    def from_corners(cls, x1: float, y1: float, x2: float, y2: float) -> "Box":
+        return cls(float(x1), float(y1), float(x2 - x1), float(y2 - y1))
+
+    @classmethod
+    def from_center(cls, cx: float, cy: float, w: float, h: float) -> "Box":
+        return cls(float(cx - w / 2.0), float(cy - h / 2.0), float(w), float(h))
+
+    @classmethod
+    def from_array(cls, a: Any) -> "Box":
+        x, y, w, h = (float(v) for v in np.asarray(a, dtype=float).reshape(4))
+        return cls(x, y, w, h)
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.x, self.y, self.w, self.h], dtype=float)
+
+    @property
+    def is_valid(self) -> bool:
+        """Finite with positive width and height."""
+        return bool(np.all(np.isfinite(self.as_array())) and self.w > 0 and self.h > 0)
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Camera frame ``k`` at time ``t = k / fps``; the image is read only when asked for."""
+
+    k: int
+    t: float
+    loader: Callable[[], np.ndarray] = field(repr=False, compare=False)
+
+    @property
+    def image(self) -> np.ndarray:
+        return self.loader()
+
+
+@dataclass(frozen=True, eq=False)
+class TrackerOutput:
+    """Block A's output: a box, a confidence in [0, 1], and optional distributions.
+
+    ``pmfs``: (4, N) per-coordinate PMFs (left, top, right, bottom), MixFormerV2-style.
+    ``score_map``: 2-D score map (e.g. 16x16 for VitTrack / OSTrack).
+    ``extra``: other named scalars worth recording (raw peak score, MLP score, ...).
+    """
+
+    box: Box
+    confidence: float
+    pmfs: np.ndarray | None = None
+    score_map: np.ndarray | None = None
+    extra: Mapping[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """Block B's output: homography ``H`` mapping points of the previous processed frame into
+    the current one (h33 = 1), its 9x9 covariance (row-major vec(H), h33 = 1 chart) or None,
+    the inlier count, the estimated point noise (px) and a validity flag."""
+
+    H: np.ndarray
+    cov: np.ndarray | None = None
+    inliers: int = 0
+    sigma: float | None = None
+    valid: bool = True
+
+    @classmethod
+    def identity(cls, valid: bool = True) -> "Motion":
+        return cls(H=np.eye(3), cov=None, inliers=0, sigma=None, valid=valid)
+
+    @classmethod
+    def invalid(cls) -> "Motion":
+        return cls.identity(valid=False)
+
+
+@dataclass(frozen=True, eq=False)
+class Estimate:
+    """Block C's output: a box and, where the estimator has one, its state covariance."""
+
+    box: Box
+    cov: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Stamped(Generic[T]):
+    """A block output as it sits on the scheduler's board: the value, the camera time of the
+    frame it was computed from (``t_capture``) and the time it became visible (``t_publish``)."""
+
+    value: T
+    t_capture: float
+    t_publish: float

@@ -1,0 +1,1 @@
+"""Built-in trackers plugins (registered through the `mata_eval` entry-point group)."""
