@@ -1,0 +1,141 @@
+"""The ``mata-eval`` command."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+from . import __version__
+from .errors import ConfigError
+
+# Modules that contribute a subcommand through ``add_cli(subparsers)``.
+SUBCOMMAND_MODULES = (
+    "mata_eval.evaluate",   # eval
+    "mata_eval.report",     # report
+    "mata_eval.synth",      # synth
+    "mata_eval.occlusion",  # augment
+    "mata_eval.timeline",   # timeline
+    "mata_eval.profile",    # profile
+    "mata_eval.export",     # export
+)
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from .hooks import KINDS
+    from .params import describe
+    from .registry import load_registry
+
+    reg = load_registry()
+    for kind in KINDS:
+        entries = [reg.plugins[kind][n] for n in reg.names(kind)]
+        print(f"{kind}s:" if kind != "egomotion" else "egomotion:")
+        if not entries:
+            print("  (none)")
+        width = max((len(e.name) for e in entries), default=0)
+        for e in entries:
+            print(f"  {e.name:<{width}}  [{e.package}]  {e.description}")
+            if args.verbose:
+                for p in describe(e.cls.Params):
+                    print(f"      {p.name}: {p.type} = {p.default!r}  {p.doc}")
+    if reg.failures:
+        print("plugins that failed to load:")
+        for f in reg.failures:
+            print(f"  {f.entry_point}  [{f.package}]  {f.error}")
+    return 0
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from .config import load_experiment
+    from .runner import ResultsConflict, evaluate_experiment, run_experiment
+
+    exp = load_experiment(args.experiment)
+    if args.output:
+        exp = type(exp)(exp.name, exp.path, Path(args.output).resolve(), exp.runs)
+    print(f"experiment {exp.name}: {len(exp.runs)} run(s) -> {exp.output}")
+    try:
+        outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,
+                                  progress=not args.quiet)
+    except ResultsConflict as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.no_report:
+        return 0
+    from .report import plot_curves, render_table
+
+    scores = evaluate_experiment(exp, only=args.runs)
+    print(render_table(scores, "terminal"))
+    plots = plot_curves(scores, exp.output / "report")
+    for p in plots:
+        print(f"plot: {p}")
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:
+        print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json")
+    return 1 if failed and len(failed) == len(outcomes) else 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from .config import load_experiment
+
+    exp = load_experiment(args.experiment)
+    print(f"{exp.path}: experiment {exp.name!r}, {len(exp.runs)} run(s), output {exp.output}")
+    for r in exp.runs:
+        blocks = [f"{k}={getattr(r, k).name}" if getattr(r, k) else f"{k}=none"
+                  for k in ("dataset", "tracker", "egomotion", "estimator", "protocol")]
+        print(f"  {r.name}: {' '.join(blocks)} occlusion={'on' if r.occlusion else 'off'}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mata-eval", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"mata-eval {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("list", help="list installed plugins by kind")
+    p.add_argument("-v", "--verbose", action="store_true", help="also list each plugin's parameters")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("run", help="run an experiment file, print its table, write plots")
+    p.add_argument("experiment", help="experiment YAML file")
+    p.add_argument("-j", "--jobs", type=int, default=None, help="worker processes (default: the cores available)")
+    p.add_argument("--force", action="store_true", help="redo sequences that already have results")
+    p.add_argument("--runs", nargs="+", metavar="RUN", help="only these named runs of the matrix")
+    p.add_argument("-o", "--output", help="output folder (overrides `output` in the file)")
+    p.add_argument("--no-report", action="store_true", help="do not score and print the table")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("validate", help="check an experiment file and list its runs without running")
+    p.add_argument("experiment")
+    p.set_defaults(func=cmd_validate)
+
+    for name in SUBCOMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ImportError as exc:
+            if exc.name == name:  # that feature is not part of this installation
+                continue
+            raise
+        module.add_cli(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: finished sequences are saved; rerun the same command to resume", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,326 @@
+"""Experiment files: one YAML file composes dataset, tracker, egomotion, estimator, protocol,
+metrics and output folder; a ``matrix:`` section expands alternatives into named runs.
+
+Every plugin block is validated against the plugin's declared ``Params`` before anything runs,
+and every error names the file, the line and the key path. Only ``yaml.safe_load`` semantics
+are used (a SafeLoader; its node tree gives the line numbers).
+
+Format (see README "Experiment files")::
+
+    name: quickstart
+    seed: 0
+    output: results/quickstart
+    dataset: {name: synthetic}
+    occlusion: null                  # or a block of mata_eval.occlusion.OcclusionParams
+    tracker: {name: kcf}
+    egomotion: {name: grid_lk}       # or null
+    estimator: {name: homography_ekf}  # or null (baseline: the tracker's output is held)
+    feedback: true
+    protocol: {name: eop, tracker_hz: 10}
+    metrics: {profile: default}
+    matrix:
+      mata:                          # axis: label -> overrides of top-level keys
+        baseline: {egomotion: null, estimator: null}
+        mata: {}
+      protocol:                      # axis named after a plugin key: label -> plugin block
+        ltp: {name: ltp}
+        eop10: {name: eop, tracker_hz: 10}
+
+An override block without ``name`` (or with the same name) is merged into the base block;
+a block with another plugin's name replaces it.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from .errors import ConfigError
+from .params import build_params
+from .registry import Registry, load_registry
+
+PLUGIN_KEYS = {"dataset": "dataset", "tracker": "tracker", "egomotion": "egomotion",
+               "estimator": "estimator", "protocol": "protocol"}
+NULLABLE = {"egomotion", "estimator", "occlusion"}
+TOP_LEVEL = {"name", "description", "seed", "output", "dataset", "occlusion", "tracker",
+             "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix"}
+DEFAULTS: dict[str, Any] = {"seed": 0, "egomotion": None, "estimator": None, "occlusion": None,
+                            "feedback": True, "protocol": {"name": "ltp"},
+                            "metrics": {"profile": "default"}}
+METRICS_KEYS = {"profile"}
+
+KeyPath = tuple  # of str | int
+
+
+@dataclasses.dataclass(frozen=True)
+class PluginBlock:
+    """A validated plugin block: which plugin, with which parameters."""
+
+    kind: str
+    name: str
+    cls: type
+    params: Any
+    raw: dict
+
+    def create(self) -> Any:
+        """A fresh instance (one per sequence, so no state leaks between sequences)."""
+        return self.cls(self.params)
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One named run of an experiment: every block resolved and validated."""
+
+    name: str
+    seed: int
+    dataset: PluginBlock
+    tracker: PluginBlock
+    egomotion: PluginBlock | None
+    estimator: PluginBlock | None
+    protocol: PluginBlock
+    occlusion: Any | None
+    feedback: bool
+    metrics_profile: str
+    resolved: dict  # the fully resolved configuration, as written to the manifest
+
+    @property
+    def config_hash(self) -> str:
+        text = json.dumps(self.resolved, sort_keys=True, default=str)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass(frozen=True)
+class Experiment:
+    name: str
+    path: Path
+    output: Path
+    runs: tuple[RunSpec, ...]
+
+
+class _SafeLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that keeps mapping keys such as ``on``/``off``/``yes`` as the strings
+    the user typed (YAML 1.1 would turn matrix labels like ``off`` into ``False``)."""
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    loader.flatten_mapping(node)
+    out = {}
+    for key_node, value_node in node.value:
+        if isinstance(key_node, yaml.ScalarNode) and key_node.tag == "tag:yaml.org,2002:bool":
+            key = key_node.value
+        else:
+            key = loader.construct_object(key_node, deep=True)
+        out[key] = loader.construct_object(value_node, deep=True)
+    return out
+
+
+_SafeLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+class _Locator:
+    """Maps key paths of the YAML document to ``file:line``."""
+
+    def __init__(self, path: Path, root: yaml.Node | None):
+        self.path = path
+        self.lines: dict[KeyPath, int] = {}
+        if root is not None:
+            self._index(root, ())
+
+    def _index(self, node: yaml.Node, kp: KeyPath) -> None:
+        self.lines[kp] = node.start_mark.line + 1
+        if isinstance(node, yaml.MappingNode):
+            for key_node, value_node in node.value:
+                key = str(key_node.value)
+                self._index(value_node, kp + (key,))
+                self.lines[kp + (key,)] = key_node.start_mark.line + 1
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                self._index(item, kp + (str(i),))
+
+    def __call__(self, doc_kp: KeyPath) -> str:
+        kp = tuple(str(k) for k in doc_kp)
+        while kp and kp not in self.lines:
+            kp = kp[:-1]
+        line = self.lines.get(kp)
+        return f"{self.path}:{line}" if line else str(self.path)
+
+
+def load_experiment(path: str | Path, registry: Registry | None = None) -> Experiment:
+    """Read, expand and validate an experiment file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(str(path), (), f"cannot read experiment file: {exc.strerror}") from None
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        doc = yaml.load(text, Loader=_SafeLoader)  # safe: a SafeLoader with string keys
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"{path}:{mark.line + 1}" if mark else str(path)
+        raise ConfigError(where, (), f"not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    locate = _Locator(path, root)
+    if not isinstance(doc, dict):
+        raise ConfigError(locate(()), (), "expected a mapping of experiment keys at the top level")
+    for key in doc:
+        if key not in TOP_LEVEL:
+            raise ConfigError(locate((key,)), (key,),
+                              f"unknown key; expected one of: {', '.join(sorted(TOP_LEVEL))}")
+    registry = registry or load_registry()
+
+    base = {k: v for k, v in doc.items() if k != "matrix"}
+    origin = {(k,): (k,) for k in base}
+    runs = []
+    for label_parts, config, cfg_origin in _expand(doc, base, origin, locate):
+        run_name = "-".join(label_parts) if label_parts else str(doc.get("name") or path.stem)
+        runs.append(_resolve(run_name, config, cfg_origin, locate, registry))
+    names = [r.name for r in runs]
+    if len(set(names)) != len(names):
+        raise ConfigError(locate(("matrix",)), ("matrix",), f"matrix labels give duplicate run names: {names}")
+    output = doc.get("output", f"results/{path.stem}")
+    if not isinstance(output, str):
+        raise ConfigError(locate(("output",)), ("output",), f"expected a folder path, got {output!r}")
+    out = Path(output)
+    if not out.is_absolute():
+        out = Path.cwd() / out
+    return Experiment(str(doc.get("name") or path.stem), path, out, tuple(runs))
+
+
+def _expand(doc: dict, base: dict, origin: dict, locate: _Locator):
+    """Yield (labels, config, origin) for every combination of the matrix axes."""
+    matrix = doc.get("matrix")
+    if matrix is None:
+        yield (), base, origin
+        return
+    if not isinstance(matrix, dict) or not matrix:
+        raise ConfigError(locate(("matrix",)), ("matrix",), "expected a mapping of axes: axis -> {label: overrides}")
+    axes = []
+    for axis, options in matrix.items():
+        kp = ("matrix", axis)
+        if not isinstance(options, dict) or not options:
+            raise ConfigError(locate(kp), kp, "expected a mapping of labels to overrides")
+        axes.append([(axis, str(label), value) for label, value in options.items()])
+    for combo in itertools.product(*axes):
+        config = copy.deepcopy(base)
+        cfg_origin = dict(origin)
+        for axis, label, value in combo:
+            kp = ("matrix", axis, label)
+            if axis in PLUGIN_KEYS:
+                overrides = {axis: value}
+                src = {axis: kp}
+            else:
+                if value is None:
+                    value = {}
+                if not isinstance(value, dict):
+                    raise ConfigError(locate(kp), kp, "expected a mapping of top-level keys to override")
+                overrides = value
+                src = {k: kp + (k,) for k in value}
+            for key, val in overrides.items():
+                if key not in TOP_LEVEL - {"matrix", "name"}:
+                    raise ConfigError(locate(src[key]), src[key], f"cannot override {key!r} in a matrix")
+                _apply(config, cfg_origin, key, val, src[key])
+        yield [label for _, label, _ in combo], config, cfg_origin
+
+
+def _apply(config: dict, origin: dict, key: str, value: Any, src: KeyPath) -> None:
+    old = config.get(key)
+    if isinstance(old, str) and key in PLUGIN_KEYS:
+        old = {"name": old}
+    if isinstance(value, str) and key in PLUGIN_KEYS:
+        value = {"name": value}
+    merge = (isinstance(value, dict) and isinstance(old, dict)
+             and value.get("name", old.get("name")) == old.get("name"))
+    if merge:
+        merged = dict(old)
+        merged.update(value)
+        config[key] = merged
+        for k in value:
+            origin[(key, k)] = src + (k,)
+    else:
+        config[key] = value
+        for okp in [o for o in origin if o[:1] == (key,)]:
+            del origin[okp]
+        origin[(key,)] = src
+
+
+def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, registry: Registry) -> RunSpec:
+    def where(kp: KeyPath) -> str:
+        kp = tuple(kp)
+        for n in range(len(kp), 0, -1):
+            if kp[:n] in origin:
+                return locate(origin[kp[:n]] + kp[n:])
+        return locate(kp)
+
+    cfg = {**DEFAULTS, **config}
+    for required in ("dataset", "tracker"):
+        if cfg.get(required) is None:
+            raise ConfigError(locate(()), (required,), f"missing required key {required!r} (a plugin block)")
+
+    blocks: dict[str, PluginBlock | None] = {}
+    resolved: dict[str, Any] = {}
+    for key, kind in PLUGIN_KEYS.items():
+        block = _plugin_block(kind, key, cfg[key], where, registry)
+        blocks[key] = block
+        resolved[key] = None if block is None else {"name": block.name, **dataclasses.asdict(block.params)}
+
+    occlusion = None
+    if cfg["occlusion"] is not None:
+        from .occlusion import OcclusionParams
+
+        if not isinstance(cfg["occlusion"], dict):
+            raise ConfigError(where(("occlusion",)), ("occlusion",), "expected a mapping of occlusion parameters or null")
+        occlusion = build_params(OcclusionParams, cfg["occlusion"], ("occlusion",), where)
+        resolved["occlusion"] = dataclasses.asdict(occlusion)
+    else:
+        resolved["occlusion"] = None
+
+    seed = cfg["seed"]
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        raise ConfigError(where(("seed",)), ("seed",), f"expected an integer seed, got {seed!r}")
+    feedback = cfg["feedback"]
+    if not isinstance(feedback, bool):
+        raise ConfigError(where(("feedback",)), ("feedback",), f"expected true or false, got {feedback!r}")
+    metrics = cfg["metrics"] or {}
+    if not isinstance(metrics, dict):
+        raise ConfigError(where(("metrics",)), ("metrics",), "expected a mapping like {profile: default}")
+    for k in metrics:
+        if k not in METRICS_KEYS:
+            raise ConfigError(where(("metrics", k)), ("metrics", k),
+                              f"unknown key; expected one of: {', '.join(sorted(METRICS_KEYS))}")
+    profile = metrics.get("profile", "default")
+    from .metrics import PROFILES
+
+    if profile not in PROFILES:
+        raise ConfigError(where(("metrics", "profile")), ("metrics", "profile"),
+                          f"unknown metric profile {profile!r}; available: {', '.join(sorted(PROFILES))}")
+    resolved.update(seed=seed, feedback=feedback, metrics={"profile": profile})
+    return RunSpec(run_name, seed, blocks["dataset"], blocks["tracker"], blocks["egomotion"],
+                   blocks["estimator"], blocks["protocol"], occlusion, feedback, profile, resolved)
+
+
+def _plugin_block(kind: str, key: str, value: Any, where, registry: Registry) -> PluginBlock | None:
+    if value is None:
+        if key in NULLABLE:
+            return None
+        raise ConfigError(where((key,)), (key,), f"expected a {kind} plugin block like {{name: ...}}, got null")
+    if isinstance(value, str):
+        value = {"name": value}
+    if not isinstance(value, dict):
+        raise ConfigError(where((key,)), (key,), f"expected a {kind} plugin block like {{name: ...}}, got {value!r}")
+    name = value.get("name")
+    if not isinstance(name, str):
+        known = ", ".join(registry.names(kind)) or "(none installed)"
+        raise ConfigError(where((key,)), (key,), f"missing `name` of the {kind} plugin; available: {known}")
+    try:
+        entry = registry.get(kind, name)
+    except KeyError as exc:
+        raise ConfigError(where((key, "name")), (key, "name"), str(exc.args[0])) from None
+    params = build_params(entry.cls.Params, {k: v for k, v in value.items() if k != "name"}, (key,), where)
+    return PluginBlock(kind, name, entry.cls, params, dict(value))

@@ -1,0 +1,157 @@
+"""Run folders (docs/architecture.md, "Run folder"): every file written atomically; the
+prediction file ``<seq>.txt`` is written last, so its presence marks a finished sequence."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+MANIFEST = "manifest.json"
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write via a temporary file in the same folder and ``os.replace`` (atomic on POSIX)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, data: Any) -> None:
+    atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=_json_default) + "\n")
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def predictions_path(run_dir: Path, seq: str) -> Path:
+    return Path(run_dir) / f"{seq}.txt"
+
+
+def is_finished(run_dir: Path, seq: str) -> bool:
+    return predictions_path(run_dir, seq).is_file()
+
+
+def format_predictions(boxes: np.ndarray) -> str:
+    """pysot-toolkit layout: one ``x,y,w,h`` line per frame, comma separated floats."""
+    return "".join(",".join(f"{v:.4f}" for v in row) + "\n" for row in np.asarray(boxes, dtype=float))
+
+
+def read_predictions(path: Path) -> np.ndarray:
+    """Read a prediction file written by :func:`format_predictions` (or any comma/tab/space
+    separated ``x,y,w,h`` file); raises ValueError naming the file and line."""
+    rows = []
+    for i, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        parts = line.replace("\t", ",").replace(" ", ",").split(",")
+        parts = [p for p in parts if p != ""]
+        try:
+            if len(parts) != 4:
+                raise ValueError
+            rows.append([float(p) for p in parts])
+        except ValueError:
+            raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}") from None
+    return np.asarray(rows, dtype=float).reshape(-1, 4)
+
+
+def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    for row in rows:
+        w.writerow(["" if (isinstance(v, float) and np.isnan(v)) else (f"{v:.4f}" if isinstance(v, float) else v)
+                    for v in row])
+    return buf.getvalue()
+
+
+def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, trace_csv: str) -> None:
+    """Write one finished sequence: sidecars first, predictions last (the completion mark)."""
+    run_dir = Path(run_dir)
+    atomic_write_text(run_dir / f"{seq}.frames.csv", frames_csv)
+    atomic_write_text(run_dir / f"{seq}.trace.csv", trace_csv)
+    (run_dir / f"{seq}.failed.json").unlink(missing_ok=True)
+    atomic_write_text(predictions_path(run_dir, seq), format_predictions(boxes))
+
+
+def write_failure(run_dir: Path, seq: str, reason: str, tb: str) -> None:
+    write_json(Path(run_dir) / f"{seq}.failed.json", {"sequence": seq, "reason": reason, "traceback": tb})
+
+
+def read_failures(run_dir: Path) -> dict[str, str]:
+    out = {}
+    for p in sorted(Path(run_dir).glob("*.failed.json")):
+        data = json.loads(p.read_text())
+        out[data["sequence"]] = data["reason"]
+    return out
+
+
+def clear_sequence(run_dir: Path, seq: str) -> None:
+    for suffix in (".txt", ".frames.csv", ".trace.csv", ".failed.json"):
+        (Path(run_dir) / f"{seq}{suffix}").unlink(missing_ok=True)
+
+
+def package_versions() -> dict[str, str]:
+    """Versions of the packages that decide the numbers (recorded in every manifest)."""
+    from importlib import metadata
+
+    out = {"python": platform.python_version()}
+    for dist in ("mata-eval", "numpy", "opencv-python-headless", "opencv-python", "onnxruntime",
+                 "torch", "pluggy", "PyYAML"):
+        try:
+            out[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def git_commit(path: Path | None = None) -> str | None:
+    """The commit of the mata-eval checkout (with ``+dirty`` when it has local changes)."""
+    where = Path(path or Path(__file__).resolve().parent)
+    try:
+        head = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True,
+                              text=True, timeout=5)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return head.stdout.strip() + ("+dirty" if dirty else "")
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+
+
+def machine() -> dict[str, Any]:
+    return {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
+            "cpu_count": os.cpu_count(), "argv": sys.argv}
+
+
+def write_manifest(run_dir: Path, manifest: dict) -> None:
+    write_json(Path(run_dir) / MANIFEST, manifest)
+
+
+def read_manifest(run_dir: Path) -> dict | None:
+    p = Path(run_dir) / MANIFEST
+    return json.loads(p.read_text()) if p.is_file() else None

@@ -1,0 +1,148 @@
+"""Experiment files: matrix expansion, validation, and errors that name file, line and key."""
+
+import textwrap
+from dataclasses import dataclass
+
+import pytest
+
+from mata_eval.config import load_experiment
+from mata_eval.errors import ConfigError
+from mata_eval.params import param
+from mata_eval.registry import PluginEntry, Registry
+
+
+def _plugin(kind, name, **fields):
+    ns = {"__annotations__": {k: type(v) for k, v in fields.items()}}
+    ns.update({k: param(v, k) for k, v in fields.items()})
+    params = dataclass(frozen=True)(type("Params", (), ns))
+    cls = type(name, (), {"name": name, "Params": params, "__doc__": f"{name} plugin",
+                          "__init__": lambda self, p: setattr(self, "params", p)})
+    return PluginEntry(kind, name, cls, "test", f"{name} plugin")
+
+
+REG = Registry({
+    "dataset": {"toy": _plugin("dataset", "toy", root="x")},
+    "tracker": {"a": _plugin("tracker", "a", padding=2.0), "b": _plugin("tracker", "b", depth=4)},
+    "egomotion": {"grid_lk": _plugin("egomotion", "grid_lk", grid=16)},
+    "estimator": {"ekf": _plugin("estimator", "ekf", model="cv", tau=0.5)},
+    "protocol": {"ltp": _plugin("protocol", "ltp"), "eop": _plugin("protocol", "eop", tracker_hz=10.0)},
+}, ())
+
+
+def write(tmp_path, text):
+    p = tmp_path / "exp.yaml"
+    p.write_text(textwrap.dedent(text))
+    return p
+
+
+def test_matrix_expands_to_named_runs_with_merged_blocks(tmp_path):
+    p = write(tmp_path, """\
+        seed: 3
+        output: out
+        dataset: {name: toy}
+        tracker: {name: a, padding: 3}
+        egomotion: {name: grid_lk}
+        estimator: {name: ekf}
+        protocol: ltp
+        matrix:
+          mata:
+            off: {egomotion: null, estimator: null}
+            on: {}
+            ca: {estimator: {model: ca}}
+          protocol:
+            ltp: {name: ltp}
+            eop10: {name: eop, tracker_hz: 10}
+        """)
+    exp = load_experiment(p, REG)
+    assert [r.name for r in exp.runs] == ["off-ltp", "off-eop10", "on-ltp", "on-eop10", "ca-ltp", "ca-eop10"]
+    runs = {r.name: r for r in exp.runs}
+    assert runs["off-ltp"].egomotion is None and runs["off-ltp"].estimator is None
+    assert runs["ca-eop10"].estimator.params.model == "ca"
+    assert runs["ca-eop10"].estimator.params.tau == 0.5       # merged, not replaced
+    assert runs["on-eop10"].protocol.params.tracker_hz == 10.0
+    assert runs["on-ltp"].tracker.params.padding == 3.0
+    assert all(r.seed == 3 for r in exp.runs)
+    assert exp.output == tmp_path.cwd() / "out" or exp.output.name == "out"
+    assert len({r.config_hash for r in exp.runs}) == 6
+
+
+def test_block_with_other_name_replaces(tmp_path):
+    p = write(tmp_path, """\
+        dataset: toy
+        tracker: {name: a, padding: 3}
+        matrix:
+          tracker:
+            a: {}
+            b: {name: b, depth: 8}
+        """)
+    runs = {r.name: r for r in load_experiment(p, REG).runs}
+    assert runs["b"].tracker.name == "b" and runs["b"].tracker.params.depth == 8
+    assert runs["a"].tracker.params.padding == 3.0
+
+
+def error(tmp_path, text):
+    with pytest.raises(ConfigError) as err:
+        load_experiment(write(tmp_path, text), REG)
+    return str(err.value)
+
+
+def test_unknown_plugin_lists_available_names_and_line(tmp_path):
+    msg = error(tmp_path, """\
+        dataset: toy
+        tracker:
+          name: mixformer
+        """)
+    assert "exp.yaml:3" in msg and "tracker.name" in msg
+    assert "unknown tracker 'mixformer'; available: a, b" in msg
+
+
+def test_bad_parameter_type_points_at_its_line(tmp_path):
+    msg = error(tmp_path, """\
+        dataset: toy
+        tracker:
+          name: a
+          padding: wide
+        """)
+    assert "exp.yaml:4: tracker.padding: expected float, got 'wide'" in msg
+
+
+def test_bad_parameter_inside_matrix_points_at_the_matrix_line(tmp_path):
+    msg = error(tmp_path, """\
+        dataset: toy
+        tracker: a
+        estimator: ekf
+        matrix:
+          variant:
+            good: {}
+            bad:
+              estimator: {tau: high}
+        """)
+    assert "exp.yaml:8" in msg and "estimator.tau" in msg and "expected float" in msg
+
+
+def test_unknown_top_level_key(tmp_path):
+    msg = error(tmp_path, "dataset: toy\ntracker: a\ntrackers: b\n")
+    assert "exp.yaml:3" in msg and "unknown key" in msg and "tracker" in msg
+
+
+def test_missing_tracker(tmp_path):
+    assert "missing required key 'tracker'" in error(tmp_path, "dataset: toy\n")
+
+
+def test_invalid_yaml_names_line(tmp_path):
+    msg = error(tmp_path, "dataset: toy\ntracker: [a\nseed: 1\n")
+    assert "exp.yaml:" in msg and "not valid YAML" in msg
+
+
+def test_python_tags_are_refused(tmp_path):
+    msg = error(tmp_path, "dataset: toy\ntracker: !!python/object/apply:os.system ['true']\n")
+    assert "not valid YAML" in msg
+
+
+def test_seed_must_be_integer(tmp_path):
+    assert "seed: expected an integer seed" in error(tmp_path, "dataset: toy\ntracker: a\nseed: x\n")
+
+
+def test_unknown_metric_profile(tmp_path):
+    msg = error(tmp_path, "dataset: toy\ntracker: a\nmetrics: {profile: vot2099}\n")
+    assert "exp.yaml:3" in msg and "unknown metric profile 'vot2099'" in msg and "pysot-toolkit" in msg

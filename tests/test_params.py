@@ -1,0 +1,52 @@
+"""Declared plugin parameters: validation of YAML values against the Params dataclass."""
+
+from dataclasses import dataclass
+from typing import Literal
+
+import pytest
+
+from mata_eval.errors import ConfigError
+from mata_eval.params import build_params, describe, param
+
+
+@dataclass(frozen=True)
+class P:
+    rate: float = param(10.0, "tracker rate in Hz")
+    grid: int = param(16, "points per side")
+    model: Literal["cv", "ca", "cj"] = param("cv", "motion model")
+    path: str | None = param(None, "model file")
+    sizes: list[int] = param([1, 2], "sizes")
+    pair: tuple[float, float] = param((0.5, 0.5), "a pair")
+    on: bool = param(True, "switch")
+
+
+def test_defaults_and_coercion():
+    p = build_params(P, {"rate": 5, "sizes": [3], "pair": [1, 2]})
+    assert p.rate == 5.0 and isinstance(p.rate, float)
+    assert p.sizes == [3] and p.pair == (1.0, 2.0) and p.grid == 16 and p.path is None
+
+
+@pytest.mark.parametrize("values, fragment", [
+    ({"rate": "fast"}, "expected float, got 'fast'"),
+    ({"grid": 1.5}, "expected int"),
+    ({"grid": True}, "expected int"),
+    ({"on": 1}, "expected bool"),
+    ({"model": "kf"}, "expected one of 'cv', 'ca', 'cj'"),
+    ({"pair": [1]}, "expected 2 values"),
+    ({"sizes": [1, "x"]}, "expected int"),
+    ({"colour": 1}, "unknown parameter 'colour'; this plugin takes: grid, model, on, pair, path, rate, sizes"),
+])
+def test_bad_values_name_key_and_expectation(values, fragment):
+    with pytest.raises(ConfigError) as err:
+        build_params(P, values, ("tracker",), lambda kp: "exp.yaml:7")
+    msg = str(err.value)
+    assert fragment in msg
+    assert msg.startswith("exp.yaml:7: tracker.")
+
+
+def test_describe_lists_type_default_doc():
+    info = {p.name: p for p in describe(P)}
+    assert info["rate"].type == "float" and info["rate"].default == 10.0
+    assert info["rate"].doc == "tracker rate in Hz"
+    assert info["path"].type == "str or null"
+    assert info["sizes"].default == [1, 2]
