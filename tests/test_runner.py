@@ -1,0 +1,143 @@
+"""The runner: failures are recorded per sequence and the run goes on; reruns resume; --force
+redoes; a changed configuration never mixes with old results."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mata_eval.config import load_experiment
+from mata_eval.params import param
+from mata_eval.registry import PluginEntry, Registry, load_registry
+from mata_eval.runner import ResultsConflict, run_experiment
+from mata_eval.sequence import FrameReadError, Sequence
+from mata_eval.types import Box, TrackerOutput
+
+CALLS: list[str] = []
+
+
+def _image(k: int) -> np.ndarray:
+    return np.full((48, 64, 3), k, np.uint8)
+
+
+def _bad_loader(k: int) -> np.ndarray:
+    if k == 2:
+        raise FrameReadError("cannot read frame 2 of sequence 'broken': /data/broken/0003.jpg")
+    return _image(k)
+
+
+class ToyDataset:
+    """Three 6-frame sequences; 'broken' has an unreadable frame, 'nan' makes the tracker fail."""
+
+    name = "toy"
+
+    @dataclass(frozen=True)
+    class Params:
+        n: int = param(6, "frames")
+
+    def __init__(self, params):
+        self.params = params
+
+    def sequences(self):
+        gt = np.array([[10.0 + k, 10.0, 8.0, 8.0] for k in range(self.params.n)])
+        return [Sequence("good", gt, 30.0, loader=_image),
+                Sequence("broken", gt, 30.0, loader=_bad_loader),
+                Sequence("nan", gt, 30.0, loader=_image)]
+
+
+class ShiftTracker:
+    """Moves the box 1 px right per call; from call ``nan_after`` on it returns NaN."""
+
+    name = "shift"
+
+    @dataclass(frozen=True)
+    class Params:
+        nan_after: int = param(-1, "return NaN from this call on (-1: never)")
+
+    def __init__(self, params):
+        self.params = params
+        self.calls = 0
+
+    def initialize(self, image, box):
+        self.box = box
+
+    def track(self, image, prior=None):
+        self.calls += 1
+        CALLS.append(f"frame{int(image[0, 0, 0])}")
+        if 0 <= self.params.nan_after <= self.calls:
+            return TrackerOutput(Box(np.nan, np.nan, np.nan, np.nan), 0.0)
+        self.box = Box(self.box.x + 1, self.box.y, self.box.w, self.box.h)
+        return TrackerOutput(self.box, 1.0)
+
+
+def _registry():
+    real = load_registry()
+    if "ltp" not in real.plugins["protocol"]:
+        pytest.skip("the ltp protocol plugin is not installed")
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
+    return Registry({"dataset": {"toy": entry("dataset", ToyDataset)},
+                     "tracker": {"shift": entry("tracker", ShiftTracker)},
+                     "egomotion": {}, "estimator": {},
+                     "protocol": {"ltp": real.plugins["protocol"]["ltp"]}}, ())
+
+
+def _exp(tmp_path, tracker_block="{name: shift}"):
+    p = tmp_path / "exp.yaml"
+    p.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: toy}}
+        tracker: {tracker_block}
+        """))
+    return load_experiment(p, _registry())
+
+
+def test_failures_are_recorded_and_the_run_goes_on(tmp_path):
+    exp = _exp(tmp_path)
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
+    run = tmp_path / "out" / "exp"
+    assert outcomes["good"].status == "done" and outcomes["nan"].status == "done"
+    assert outcomes["broken"].status == "failed"
+    assert "cannot read frame 2" in outcomes["broken"].reason
+    failure = json.loads((run / "broken.failed.json").read_text())
+    assert failure["sequence"] == "broken" and "FrameReadError" in failure["reason"]
+    assert not (run / "broken.txt").exists()
+    # LTP: the tracker moves 1 px per frame from the ground-truth box of frame 0.
+    pred = np.loadtxt(run / "good.txt", delimiter=",")
+    np.testing.assert_allclose(pred[:, 0], 10.0 + np.arange(6))
+    manifest = json.loads((run / "manifest.json").read_text())
+    assert manifest["config"]["tracker"] == {"name": "shift", "nan_after": -1}
+    assert manifest["seed"] == 0 and "numpy" in manifest["versions"]
+
+
+def test_nan_from_tracker_fails_only_that_sequence(tmp_path):
+    exp = _exp(tmp_path, "{name: shift, nan_after: 3}")
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
+    assert outcomes["good"].status == "failed" and outcomes["nan"].status == "failed"
+    assert all("non-finite" in o.reason or "nan" in o.reason.lower() for o in outcomes.values()
+               if o.sequence != "broken")
+
+
+def test_rerun_skips_finished_retries_failed_and_force_redoes(tmp_path):
+    exp = _exp(tmp_path)
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    CALLS.clear()
+    again = {o.sequence: o.status for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
+    assert again == {"good": "skipped", "nan": "skipped", "broken": "failed"}
+    # Only the failed sequence ran again, and it stops at its unreadable frame 2.
+    assert set(CALLS) <= {"frame1"}
+    forced = {o.sequence: o.status for o in run_experiment(exp, jobs=1, force=True, progress=False,
+                                                             log=lambda s: None)}
+    assert forced == {"good": "done", "nan": "done", "broken": "failed"}
+
+
+def test_changed_config_does_not_mix_with_old_results(tmp_path):
+    run_experiment(_exp(tmp_path), jobs=1, progress=False, log=lambda s: None)
+    changed = _exp(tmp_path, "{name: shift, nan_after: 100}")
+    with pytest.raises(ResultsConflict, match="different configuration"):
+        run_experiment(changed, jobs=1, progress=False, log=lambda s: None)
+    outcomes = run_experiment(changed, jobs=1, force=True, progress=False, log=lambda s: None)
+    assert {o.status for o in outcomes} == {"done", "failed"}
