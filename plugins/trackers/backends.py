@@ -1,0 +1,131 @@
+"""Inference backends for ONNX graphs: ONNX Runtime (CPU, CUDA or TensorRT execution provider)
+and a TensorRT engine built from the ONNX file. Each returns a callable
+``run(feeds: dict[str, ndarray]) -> dict[str, ndarray]``; trackers do their own pre- and
+post-processing around it. The heavy packages are imported only when a backend is chosen."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable, Literal
+
+import numpy as np
+
+Runner = Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]]
+Backend = Literal["onnxruntime", "tensorrt"]
+Device = Literal["cpu", "cuda", "tensorrt"]
+
+_ORT_PROVIDERS = {
+    "cpu": ["CPUExecutionProvider"],
+    "cuda": ["CUDAExecutionProvider", "CPUExecutionProvider"],
+    "tensorrt": ["TensorrtExecutionProvider", "CUDAExecutionProvider", "CPUExecutionProvider"],
+}
+
+
+class BackendUnavailable(RuntimeError):
+    """The chosen backend or device is not installed or not usable on this machine."""
+
+
+def open_onnx(path: str | Path, backend: Backend = "onnxruntime", device: Device = "cpu",
+              threads: int = 0, fp16: bool = False) -> Runner:
+    """Open an ONNX graph with the chosen backend."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"ONNX file not found: {path}")
+    if backend == "onnxruntime":
+        return _onnxruntime(path, device, threads)
+    if backend == "tensorrt":
+        return TensorRTRunner(build_engine(path, fp16=fp16))
+    raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
+
+
+def _onnxruntime(path: Path, device: Device, threads: int) -> Runner:
+    try:
+        import onnxruntime as ort
+    except ImportError:
+        raise BackendUnavailable("onnxruntime is not installed: pip install 'mata-eval[onnx]'") from None
+    available = ort.get_available_providers()
+    wanted = _ORT_PROVIDERS[device]
+    if wanted[0] not in available:
+        raise BackendUnavailable(f"device {device!r} needs {wanted[0]}, but this onnxruntime offers only "
+                                 f"{', '.join(available)}")
+    options = ort.SessionOptions()
+    if threads:
+        options.intra_op_num_threads = threads
+    session = ort.InferenceSession(str(path), options, providers=[p for p in wanted if p in available])
+    names = [o.name for o in session.get_outputs()]
+
+    def run(feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return dict(zip(names, session.run(names, feeds)))
+
+    return run
+
+
+def engine_path_for(onnx_path: Path, fp16: bool) -> Path:
+    return onnx_path.with_suffix(f".{'fp16' if fp16 else 'fp32'}.engine")
+
+
+def build_engine(onnx_path: Path, fp16: bool = False, engine_path: Path | None = None) -> Path:
+    """Build (or reuse, when newer than the ONNX file) a serialized TensorRT engine."""
+    try:
+        import tensorrt as trt
+    except ImportError:
+        raise BackendUnavailable("TensorRT is not installed (on a Jetson it comes with JetPack: "
+                                 "python3 -c 'import tensorrt')") from None
+    engine_path = engine_path or engine_path_for(onnx_path, fp16)
+    if engine_path.is_file() and engine_path.stat().st_mtime >= onnx_path.stat().st_mtime:
+        return engine_path
+    logger = trt.Logger(trt.Logger.WARNING)
+    builder = trt.Builder(logger)
+    network = builder.create_network(0)
+    parser = trt.OnnxParser(network, logger)
+    if not parser.parse(onnx_path.read_bytes()):
+        errors = "; ".join(str(parser.get_error(i)) for i in range(parser.num_errors))
+        raise RuntimeError(f"TensorRT cannot parse {onnx_path}: {errors}")
+    config = builder.create_builder_config()
+    if fp16:
+        config.set_flag(trt.BuilderFlag.FP16)
+    serialized = builder.build_serialized_network(network, config)
+    if serialized is None:
+        raise RuntimeError(f"TensorRT failed to build an engine from {onnx_path}")
+    tmp = engine_path.with_suffix(".tmp")
+    tmp.write_bytes(bytes(serialized))
+    os.replace(tmp, engine_path)
+    return engine_path
+
+
+class TensorRTRunner:
+    """Runs a serialized TensorRT engine (TensorRT 10 tensor API), with torch CUDA tensors as
+    device buffers (torch is on every Jetson image; no pycuda needed)."""
+
+    def __init__(self, engine_path: Path):
+        import tensorrt as trt
+        import torch
+
+        if not torch.cuda.is_available():
+            raise BackendUnavailable("the TensorRT backend needs a CUDA device")
+        self._torch = torch
+        runtime = trt.Runtime(trt.Logger(trt.Logger.WARNING))
+        self.engine = runtime.deserialize_cuda_engine(Path(engine_path).read_bytes())
+        self.context = self.engine.create_execution_context()
+        self.stream = torch.cuda.Stream()
+        self.buffers: dict[str, "torch.Tensor"] = {}
+        self.inputs, self.outputs = [], []
+        for i in range(self.engine.num_io_tensors):
+            name = self.engine.get_tensor_name(i)
+            dtype = torch.from_numpy(np.empty(0, trt.nptype(self.engine.get_tensor_dtype(name)))).dtype
+            buf = torch.empty(tuple(self.engine.get_tensor_shape(name)), dtype=dtype, device="cuda")
+            self.buffers[name] = buf
+            self.context.set_tensor_address(name, buf.data_ptr())
+            is_input = self.engine.get_tensor_mode(name) == trt.TensorIOMode.INPUT
+            (self.inputs if is_input else self.outputs).append(name)
+
+    def __call__(self, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        torch = self._torch
+        with torch.cuda.stream(self.stream):
+            for name in self.inputs:
+                self.buffers[name].copy_(torch.from_numpy(np.ascontiguousarray(feeds[name])), non_blocking=True)
+            self.context.execute_async_v3(self.stream.cuda_stream)
+            out = {name: self.buffers[name].to("cpu", non_blocking=False).numpy() for name in self.outputs}
+        self.stream.synchronize()
+        return out
