@@ -1,0 +1,259 @@
+"""MATA block C: the homography EKF (paper section 2.3), with measurement gating, partial
+asynchronous updates and optional compensation of delayed measurements.
+
+Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
+interval ending at this tick updates the H state *before* the corners are propagated (the
+literal reading, H held from the previous tick, is ``h_update: after_predict``); ``dt`` is in
+seconds so velocities are px/s; Q entries are variance rates per second (Q = q dt).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Sequence
+
+import numpy as np
+
+from mata_eval.hooks import hookimpl
+from mata_eval.params import param
+from mata_eval.types import Box, Estimate, Motion, Stamped, TrackerOutput
+
+from . import ekf_math as em
+
+N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
+EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
+
+# Defaults for the homography entries (row-major h11..h33; units 1, 1, px, 1, 1, px, 1/px, 1/px, 1).
+_Q_H = [3e-3, 3e-3, 3e2, 3e-3, 3e-3, 3e2, 3e-9, 3e-9, 3e-9]
+_P0_H = [1e-3, 1e-3, 1e2, 1e-3, 1e-3, 1e2, 1e-8, 1e-8, 1e-8]
+_R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
+
+
+# --- block A gating (eq. ewma_score) ---------------------------------------------------------
+
+def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewma: float,
+                    tau_diff: float) -> tuple[float | None, bool]:
+    """Update the EWMA S_k = alpha P_k + (1 - alpha) S_{k-1} with the tracker confidence P_k and
+    decide: accept unless S_k < tau_ewma or P_k dropped below S_k by more than tau_diff.
+    The first confidence seeds the average (S_1 = P_1). Returns (S_k, accept)."""
+    if not np.isfinite(confidence):
+        return ewma, False
+    s = confidence if ewma is None else alpha * confidence + (1.0 - alpha) * ewma
+    return s, bool(s >= tau_ewma and s - confidence <= tau_diff)
+
+
+@dataclass(frozen=True)
+class FilterState:
+    """Everything a tick changes: state, covariance and the confidence EWMA."""
+
+    x: np.ndarray
+    P: np.ndarray
+    ewma: float | None
+
+
+@dataclass
+class _Tick:
+    t: float
+    dt: float
+    before: FilterState
+    after: FilterState | None = None
+    motions: list[Stamped[Motion]] = field(default_factory=list)
+    detections: list[Stamped[TrackerOutput]] = field(default_factory=list)
+
+
+class HomographyEKF:
+    """Homography EKF (MATA block C): box corners carried by the camera homography, gated updates."""
+
+    name = "homography_ekf"
+
+    @dataclass(frozen=True)
+    class Params:
+        model: Literal["cv", "ca", "cj"] = param("cv", "dynamic model of the box centre: constant velocity (paper), acceleration or jerk")
+        camera: bool = param(True, "use block B's homography; false = no camera compensation (H forced to identity)")
+        gating: bool = param(True, "reject measurements by the thresholds below; false = use every measurement")
+        alpha_ewma: float = param(0.3, "EWMA smoothing factor of the tracker confidence (paper eq. ewma_score)")
+        tau_ewma: float = param(0.25, "reject the tracker's box while the confidence EWMA is below this")
+        tau_diff: float = param(0.25, "reject the tracker's box when its confidence is this far below the EWMA")
+        tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
+        delay: Literal["ignore", "compensate"] = param("ignore", "delayed measurements: apply on arrival (paper) or at their capture time")
+        history_s: float = param(2.0, "seconds of state history kept for delay: compensate")
+        h_update: Literal["before_predict", "after_predict"] = param("before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
+        r_box: float = param(4.0, "variance (px^2) of each measured corner coordinate (fixed, paper)")
+        r_h_floor: list[float] = param(_R_H_FLOOR, "per-entry floor of the homography measurement variance (9 values, row-major)")
+        q_box: float = param(30.0, "process noise of each corner coordinate (px^2 per second)")
+        q_h: list[float] = param(_Q_H, "process noise of the homography entries (9 values, per second)")
+        q_v: float = param(1e3, "process noise of the centre velocity ((px/s)^2 per second)")
+        q_a: float = param(1e4, "process noise of the centre acceleration (models ca, cj)")
+        q_j: float = param(1e5, "process noise of the centre jerk (model cj)")
+        p0_box: float = param(1.0, "initial variance of each corner coordinate (px^2)")
+        p0_h: list[float] = param(_P0_H, "initial variance of the homography entries (9 values)")
+        p0_v: float = param(1e4, "initial variance of the centre velocity ((px/s)^2)")
+        p0_a: float = param(1e4, "initial variance of the centre acceleration ((px/s^2)^2)")
+        p0_j: float = param(1e5, "initial variance of the centre jerk ((px/s^3)^2)")
+
+    def __init__(self, params: Params | None = None):
+        self.params = p = params if params is not None else self.Params()
+        for key in ("r_h_floor", "q_h", "p0_h"):
+            v = getattr(p, key)
+            if len(v) != 9 or not all(np.isfinite(v)) or min(v) < 0:
+                raise ValueError(f"homography_ekf: `{key}` must be 9 non-negative numbers "
+                                 f"(row-major h11..h33), got {v!r}")
+        if min(p.r_h_floor) <= 0:
+            raise ValueError(f"homography_ekf: `r_h_floor` must be positive, got {p.r_h_floor!r}")
+        if not 0.0 < p.alpha_ewma <= 1.0:
+            raise ValueError(f"homography_ekf: `alpha_ewma` must be in (0, 1], got {p.alpha_ewma}")
+        if p.r_box <= 0:
+            raise ValueError(f"homography_ekf: `r_box` must be positive, got {p.r_box}")
+        self.n_deriv = N_DERIV[p.model]
+        n = em.state_dim(self.n_deriv)
+        h_q = np.asarray(p.q_h, float) if p.camera else np.zeros(9)
+        h_p0 = np.asarray(p.p0_h, float) if p.camera else np.zeros(9)
+        dq = [p.q_v, p.q_a, p.q_j][: self.n_deriv]
+        dp = [p.p0_v, p.p0_a, p.p0_j][: self.n_deriv]
+        self._q = np.concatenate([np.full(4, p.q_box), h_q, np.repeat(dq, 2)])
+        self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
+        self._H_box = em.selector(n, em.CORNERS)
+        self._H_hom = em.selector(n, em.HOM)
+        self._R_box = np.eye(4) * p.r_box
+        self._h_floor = np.asarray(p.r_h_floor, float)
+        self._ticks: list[_Tick] = []
+
+    # --- interface ---------------------------------------------------------------------------
+
+    def initialize(self, box: Box, t: float) -> Estimate:
+        if not box.is_valid:
+            raise ValueError(f"homography_ekf: initial box must be finite with positive size, got {box}")
+        x = np.zeros(em.state_dim(self.n_deriv))
+        x[em.CORNERS] = box.corners()
+        x[em.HOM] = np.eye(3).reshape(9)
+        start = FilterState(x, self._p0.copy(), None)
+        self._ticks = [_Tick(float(t), 0.0, start, start)]
+        return self._estimate(start)
+
+    def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
+             detections: Sequence[Stamped[TrackerOutput]] = ()) -> Estimate:
+        if not self._ticks:
+            raise RuntimeError("homography_ekf: step() called before initialize()")
+        last = self._ticks[-1]
+        if t < last.t - EPS_T:
+            raise ValueError(f"homography_ekf: step at t={t} is before the previous tick t={last.t}")
+        if t > last.t + EPS_T:
+            self._ticks.append(_Tick(float(t), float(t) - last.t, last.after))
+        first = len(self._ticks) - 1
+        for kind, items in (("motions", motions), ("detections", detections)):
+            for item in items:
+                i = self._tick_index(item.t_capture)
+                getattr(self._ticks[i], kind).append(item)
+                first = min(first, i)
+        self._replay(first)
+        self._trim()
+        return self._estimate(self._ticks[-1].after)
+
+    @property
+    def state(self) -> FilterState:
+        """The newest filter state (x, P, confidence EWMA)."""
+        return self._ticks[-1].after
+
+    # --- ticks --------------------------------------------------------------------------------
+
+    def _tick_index(self, t_capture: float) -> int:
+        """The tick a measurement belongs to: the newest under ``delay: ignore`` (applied on
+        arrival), the tick nearest its capture time under ``compensate`` (the newest when it is
+        older than the kept history)."""
+        last = len(self._ticks) - 1
+        if self.params.delay == "ignore" or t_capture >= self._ticks[-1].t - EPS_T:
+            return last
+        if t_capture < self._ticks[0].t - EPS_T:
+            return last
+        times = np.array([k.t for k in self._ticks])
+        return int(np.argmin(np.abs(times - t_capture)))
+
+    def _replay(self, first: int) -> None:
+        for i in range(first, len(self._ticks)):
+            tick = self._ticks[i]
+            if i > first:
+                tick.before = self._ticks[i - 1].after
+            tick.after = self._run_tick(tick)
+
+    def _trim(self) -> None:
+        if self.params.delay == "ignore":
+            self._ticks = self._ticks[-1:]
+            return
+        horizon = self._ticks[-1].t - self.params.history_s
+        while len(self._ticks) > 1 and self._ticks[1].t <= horizon:
+            self._ticks.pop(0)
+
+    def _run_tick(self, tick: _Tick) -> FilterState:
+        """One tick: H update(s), prediction over dt, corner update(s); measurements in capture
+        order. Predicting is skipped when dt = 0 (the initial frame, or measurements added to an
+        already-run tick)."""
+        x, P, ewma = tick.before.x, tick.before.P, tick.before.ewma
+        motions = sorted(tick.motions, key=lambda s: s.t_capture)
+        before = self.params.h_update == "before_predict"
+        if before:
+            x, P = self._update_motion(x, P, motions)
+        if tick.dt > 0:
+            fx, F = em.transition(x, tick.dt, self.n_deriv)
+            x, P = fx, em.predict_cov(P, F, np.diag(self._q * tick.dt))
+        if not before:
+            x, P = self._update_motion(x, P, motions)
+        for det in sorted(tick.detections, key=lambda s: s.t_capture):
+            x, P, ewma = self._update_detection(x, P, ewma, det.value)
+        return FilterState(x, P, ewma)
+
+    # --- measurements -----------------------------------------------------------------------------
+
+    def _update_motion(self, x: np.ndarray, P: np.ndarray,
+                       motions: list[Stamped[Motion]]) -> tuple[np.ndarray, np.ndarray]:
+        """Block B: the motions of this tick composed into one (consecutive intervals), gated by
+        validity and tau_sigma, then a partial update of the 9 homography entries. Invalid or
+        rejected: no update, the H state is held (paper: H constant between measurements)."""
+        if not self.params.camera or not motions:
+            return x, P
+        H, C = None, None
+        for s in motions:
+            m = s.value
+            Hm = np.asarray(m.H, dtype=float)
+            if (not m.valid or Hm.shape != (3, 3) or not np.all(np.isfinite(Hm))
+                    or abs(Hm[2, 2]) < 1e-12):
+                return x, P
+            Cm = None if m.cov is None else np.asarray(m.cov, dtype=float)
+            if Cm is not None and (Cm.shape != (9, 9) or not np.all(np.isfinite(Cm))):
+                return x, P
+            Hm = em.normalise_h33(Hm)
+            if H is None:
+                H, C = Hm, Cm
+            else:
+                H, C = em.compose(H, C, Hm, Cm)
+        # validity: the box corners must stay in front of the camera (w > 0) under H
+        for p in (x[em.TL], x[em.BR]):
+            if H[2, 0] * p[0] + H[2, 1] * p[1] + H[2, 2] <= 1e-6:
+                return x, P
+        if self.params.gating and C is not None:
+            centre = 0.5 * (x[em.TL] + x[em.BR])
+            if not em.transferred_sigma(H, C, centre) <= self.params.tau_sigma:
+                return x, P
+        return em.joseph_update(x, P, H.reshape(9), self._H_hom, em.floored(C, self._h_floor))
+
+    def _update_detection(self, x: np.ndarray, P: np.ndarray, ewma: float | None,
+                          out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, float | None]:
+        """Block A: EWMA gate (eq. ewma_score), then a partial update of the four corners with
+        R = r_box I. A non-finite or empty box is never used."""
+        p = self.params
+        ewma, accept = confidence_gate(ewma, float(out.confidence), p.alpha_ewma, p.tau_ewma, p.tau_diff)
+        if not out.box.is_valid or (p.gating and not accept):
+            return x, P, ewma
+        x, P = em.joseph_update(x, P, np.asarray(out.box.corners(), float), self._H_box, self._R_box)
+        return x, P, ewma
+
+    @staticmethod
+    def _estimate(s: FilterState) -> Estimate:
+        """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
+        x1, y1, x2, y2 = s.x[em.CORNERS]
+        cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
+        return Estimate(Box.from_center(cx, cy, max(x2 - x1, 1.0), max(y2 - y1, 1.0)), s.P.copy())
+
+
+@hookimpl
+def mata_eval_estimators():
+    return [HomographyEKF]
