@@ -1,0 +1,436 @@
+"""The one discrete-event scheduler behind every protocol (paper section 3.1; DESIGN.md "One
+scheduler, four protocols").
+
+Model. The camera delivers frame ``k`` at ``t_k = k / fps`` (DSP delivers only every n-th frame).
+Each block (egomotion B, tracker A, estimator C) has a rate and an output latency. A block gets a
+*turn* at a delivered frame when its rate grid ``m / hz`` has passed a tick since its previous
+turn (a 10 Hz block on a 30 Hz stream: frames 0, 3, 6, ...). At a turn it starts if it is idle;
+a block still busy skips the turn (no queueing). A call started at ``t_k`` publishes its output
+on the shared board at ``t_k + latency`` (plus an optional per-link communication delay before a
+given consumer sees it); the block is busy until it publishes. Within one frame the blocks run
+in data-flow order (camera, egomotion, tracker, estimator), so a zero-latency output published at
+``t_k`` is seen by the blocks after it in that order at the same frame. The scored value of frame
+``k`` is the newest output of the output block (the estimator, or the tracker without one)
+visible at ``t_k``: a zero-order hold.
+
+Frame 0 initialises every block (tracker with the ground-truth box, egomotion with image 0,
+estimator with the ground-truth box at t = 0); an initialisation is a call like any other (its
+latency occupies the block) and publishes nothing new: the initial box is held until the first
+output. With an estimator and ``feedback``, the tracker's prior at each start is the centre of the
+estimator's newest estimate visible then. The estimator is handed, at each of its ticks, the
+outputs that became visible to it since its previous tick, each ``Stamped(value, t_capture,
+t_publish)`` with ``t_publish`` the time it reached the estimator (the paper's ``delay: ignore``
+is the estimator's business).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import time
+from bisect import bisect_right
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, NamedTuple, Protocol
+
+import numpy as np
+
+from .sequence import Sequence
+from .timing_profile import BlockProfile
+from .types import Box, Estimate, Motion, Stamped, TrackerOutput
+
+#: Blocks in intra-frame (data-flow) order. ``camera`` only delivers frames.
+BLOCKS = ("egomotion", "tracker", "estimator")
+LANES = ("camera",) + BLOCKS
+EVENTS = ("publish", "skip", "start")  # order of events at the same instant in a trace
+EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
+
+
+# --- timing specs (what a protocol gives the scheduler) ----------------------------------------
+
+class Latency(Protocol):
+    """Output latency of one call, in seconds; ``wall_s`` is the call's measured wall time."""
+
+    def draw(self, rng: np.random.Generator, wall_s: float) -> float: ...
+
+
+@dataclass(frozen=True)
+class FixedLatency:
+    """A constant latency (the paper's EOP: zero or one period)."""
+
+    seconds: float = 0.0
+
+    def draw(self, rng: np.random.Generator, wall_s: float) -> float:
+        return self.seconds
+
+
+@dataclass(frozen=True, eq=False)
+class ProfileLatency:
+    """A latency drawn per call from a measured timing profile (seeded by the run's rng)."""
+
+    profile: BlockProfile
+
+    def draw(self, rng: np.random.Generator, wall_s: float) -> float:
+        return float(self.profile.sample(rng))
+
+
+@dataclass(frozen=True)
+class WallTimeLatency:
+    """The call's own wall-clock time on this machine, times ``scale`` (VOT real-time)."""
+
+    scale: float = 1.0
+
+    def draw(self, rng: np.random.Generator, wall_s: float) -> float:
+        return self.scale * wall_s
+
+
+@dataclass(frozen=True)
+class BlockTiming:
+    """Rate (turns per second of camera time), latency, and the standard deviation of a
+    Gaussian per-call jitter added to the latency (clipped at zero)."""
+
+    hz: float
+    latency: Latency = FixedLatency(0.0)
+    jitter_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Everything the scheduler needs from a protocol for one sequence.
+
+    ``camera_hz``: rate at which the camera delivers frames (``fps``, or ``fps / n`` for DSP);
+    only delivered frames are scored and only they can start blocks.
+    ``blocks``: timing of ``egomotion``, ``tracker`` and ``estimator`` (those absent from the
+    run are ignored). ``link_delay_s``: ``(producer, consumer) -> seconds`` communication delay,
+    consumers being the blocks and ``"output"`` (the scored output)."""
+
+    camera_hz: float
+    blocks: Mapping[str, BlockTiming]
+    link_delay_s: Mapping[tuple[str, str], float] = field(default_factory=dict)
+
+
+class ProtocolPreset(Protocol):
+    """What a protocol plugin provides: the timing of each block for a camera rate."""
+
+    def timing(self, fps: float) -> Timing: ...
+
+
+def every_frame(fps: float, latency_s: float = 0.0) -> Timing:
+    """Every block at the camera rate with a fixed latency (LTP when ``latency_s`` is 0)."""
+    return Timing(fps, {b: BlockTiming(fps, FixedLatency(latency_s)) for b in BLOCKS})
+
+
+# --- results ---------------------------------------------------------------------------------
+
+class TraceEvent(NamedTuple):
+    """One scheduler event. ``frame``: the frame at which it happens (for a publish, the first
+    frame at or after its publish time ``t``)."""
+
+    block: str
+    event: str  # start | publish | skip
+    frame: int
+    t: float
+
+
+class BlockError(RuntimeError):
+    """A block raised or returned an unusable value; names the block and the frame."""
+
+    def __init__(self, block: str, frame: int, t: float, message: str):
+        self.block, self.frame, self.t = block, frame, t
+        super().__init__(f"{block} failed at frame {frame} (t = {t:.4f} s): {message}")
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceRun:
+    """The scheduler's result for one sequence (N frames).
+
+    ``boxes`` (N, 4): scored box per frame (held value); ``scored`` (N,): frame delivered and
+    scored; ``confidence`` (N,): newest tracker confidence visible (NaN before the first
+    output); ``source_frame`` (N,): capture frame of the held value (0 = the initial box);
+    ``wall_ms``: block -> (N,) wall time of the call started at frame k (NaN where none);
+    ``trace``: start/publish/skip events; ``rates_hz``: block -> starts per second of camera
+    time (initialisation included)."""
+
+    fps: float
+    boxes: np.ndarray
+    scored: np.ndarray
+    confidence: np.ndarray
+    source_frame: np.ndarray
+    wall_ms: Mapping[str, np.ndarray]
+    trace: tuple[TraceEvent, ...]
+    rates_hz: Mapping[str, float]
+
+    def frame_rows(self) -> list[dict[str, Any]]:
+        """Rows of ``<seq>.frames.csv``: frame, scored, confidence, ``<block>_ms``..., source_frame."""
+        rows = []
+        for k in range(len(self.boxes)):
+            row: dict[str, Any] = {"frame": k, "scored": int(self.scored[k]),
+                                   "confidence": float(self.confidence[k])}
+            for b, ms in self.wall_ms.items():
+                row[f"{b}_ms"] = float(ms[k])
+            row["source_frame"] = int(self.source_frame[k])
+            rows.append(row)
+        return rows
+
+    def frames_csv(self) -> str:
+        cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
+        out = io.StringIO()
+        out.write(",".join(cols) + "\n")
+        conf = [_fmt(v) for v in self.confidence]
+        walls = [[_fmt(v) for v in ms] for ms in self.wall_ms.values()]
+        for k in range(len(self.boxes)):
+            cells = [str(k), str(int(self.scored[k])), conf[k]] + [w[k] for w in walls]
+            cells.append(str(int(self.source_frame[k])))
+            out.write(",".join(cells) + "\n")
+        return out.getvalue()
+
+    def trace_rows(self) -> list[tuple[str, str, int, float]]:
+        """Rows of ``<seq>.trace.csv``: (block, event, frame, t)."""
+        return [tuple(e) for e in self.trace]
+
+    def trace_csv(self) -> str:
+        return trace_to_csv(self.trace)
+
+
+def trace_to_csv(rows: Any) -> str:
+    out = io.StringIO()
+    out.write("block,event,frame,t\n")
+    for block, event, frame, t in rows:
+        out.write(f"{block},{event},{int(frame)},{float(t):.9g}\n")
+    return out.getvalue()
+
+
+def read_trace_csv(text: str) -> list[TraceEvent]:
+    """Parse the text of a ``<seq>.trace.csv`` file."""
+    lines = text.strip().splitlines()
+    if not lines or lines[0].strip() != "block,event,frame,t":
+        raise ValueError("not a trace file: expected the header 'block,event,frame,t'")
+    rows = []
+    for i, line in enumerate(lines[1:], start=2):
+        parts = line.split(",")
+        if len(parts) != 4 or parts[1] not in EVENTS:
+            raise ValueError(f"trace line {i}: expected block,start|publish|skip,frame,t; got {line!r}")
+        rows.append(TraceEvent(parts[0], parts[1], int(parts[2]), float(parts[3])))
+    return rows
+
+
+def _fmt(v: float) -> str:
+    return "nan" if not math.isfinite(v) else f"{v:.6g}"
+
+
+# --- the scheduler ---------------------------------------------------------------------------
+
+def turn_frames(n_frames: int, hz: float, fps: float, delivered: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: frames at which a block of rate ``hz`` gets a turn. Its ticks lie on the grid
+    ``m / hz``; the turn is the first delivered frame at or after a tick (several ticks passed
+    in one gap give one turn). Frame 0 is always a turn."""
+    if not (hz > 0 and math.isfinite(hz)):
+        raise ValueError(f"a block rate must be a positive number of Hz, got {hz!r}")
+    k = np.arange(n_frames)
+    delivered = np.ones(n_frames, bool) if delivered is None else delivered
+    ticks = np.floor(k * hz / fps + EPS)  # number of grid ticks at or before t_k
+    kd = np.flatnonzero(delivered)
+    out = np.zeros(n_frames, bool)
+    if kd.size:
+        md = ticks[kd]
+        out[kd] = np.concatenate([[True], md[1:] > md[:-1]])
+    return out
+
+
+@dataclass
+class _Board:
+    """One block's published outputs, in publish order (a block never overlaps its own calls,
+    so publish times are increasing)."""
+
+    values: list = field(default_factory=list)
+    t_capture: list = field(default_factory=list)
+    k_capture: list = field(default_factory=list)
+    t_publish: list = field(default_factory=list)
+
+    def post(self, value: Any, t_capture: float, k_capture: int, t_publish: float) -> None:
+        self.values.append(value)
+        self.t_capture.append(t_capture)
+        self.k_capture.append(k_capture)
+        self.t_publish.append(t_publish)
+
+    def visible(self, t: float, delay: float = 0.0) -> int:
+        """Number of outputs visible at ``t`` through a link of ``delay`` seconds."""
+        return bisect_right(self.t_publish, t - delay + EPS)
+
+
+def run_sequence(
+    sequence: Sequence,
+    tracker: Any,
+    egomotion: Any,
+    estimator: Any,
+    protocol: ProtocolPreset,
+    rng: np.random.Generator,
+    feedback: bool = True,
+    *,
+    clock: Callable[[], float] = time.perf_counter,
+) -> SequenceRun:
+    """Run the blocks over ``sequence`` as ``protocol`` times them (see the module docstring).
+
+    ``egomotion`` / ``estimator`` may be None. ``clock`` measures wall time (seconds)."""
+    fps = float(sequence.fps)
+    n = len(sequence)
+    if n == 0:
+        raise ValueError(f"sequence {sequence.name!r} has no frames")
+    if not (fps > 0 and math.isfinite(fps)):
+        raise ValueError(f"sequence {sequence.name!r}: fps must be positive, got {sequence.fps!r}")
+    timing = protocol.timing(fps)
+    objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
+    active = [b for b in BLOCKS if objs[b] is not None]
+    for b in active:
+        if b not in timing.blocks:
+            raise ValueError(f"protocol {type(protocol).__name__} gives no timing for block {b!r}")
+    links = dict(timing.link_delay_s)
+
+    def link(src: str, dst: str) -> float:
+        return float(links.get((src, dst), 0.0))
+
+    delivered = turn_frames(n, timing.camera_hz, fps)
+    turns = {b: turn_frames(n, timing.blocks[b].hz, fps, delivered) for b in active}
+    boards = {b: _Board() for b in BLOCKS}
+    busy_until = {b: -math.inf for b in BLOCKS}
+    calls = {b: 0 for b in BLOCKS}
+    consumed = {"egomotion": 0, "tracker": 1}  # estimator's read position (tracker: after the init box)
+    wall_ms = {b: np.full(n, np.nan) for b in ("tracker", "egomotion", "estimator") if b in active}
+    trace: list[TraceEvent] = []
+    t_end = (n - 1) / fps
+    init_box = sequence.init_box
+
+    # The initial box is held (visible at t = 0) until the first output.
+    boards["tracker"].post(TrackerOutput(init_box, math.nan), 0.0, 0, 0.0)
+
+    out_block = "estimator" if estimator is not None else "tracker"
+    boxes = np.empty((n, 4))
+    confidence = np.full(n, np.nan)
+    source = np.zeros(n, dtype=int)
+
+    for k in range(n):
+        tk = k / fps
+        if delivered[k]:
+            trace.append(TraceEvent("camera", "publish", k, tk))
+        else:
+            trace.append(TraceEvent("camera", "skip", k, tk))
+        image: np.ndarray | None = None
+
+        def frame_image() -> np.ndarray:
+            nonlocal image
+            if image is None:
+                image = sequence.image(k)
+            return image
+
+        for b in active:
+            if not turns[b][k]:
+                continue
+            if busy_until[b] > tk + EPS:
+                trace.append(TraceEvent(b, "skip", k, tk))
+                continue
+            trace.append(TraceEvent(b, "start", k, tk))
+            first = calls[b] == 0
+            calls[b] += 1
+            obj = objs[b]
+            if b == "egomotion":
+                img = frame_image()
+                t0 = clock()
+                value = _call(b, k, tk, obj.initialize if first else obj.estimate, img)
+                wall = clock() - t0
+                if not first and not isinstance(value, Motion):
+                    raise BlockError(b, k, tk, f"expected a Motion, got {type(value).__name__}")
+            elif b == "tracker":
+                img = frame_image()
+                if first:
+                    t0 = clock()
+                    value = _call(b, k, tk, obj.initialize, img, init_box)
+                    wall = clock() - t0
+                else:
+                    prior = None
+                    if feedback and estimator is not None:
+                        i = boards["estimator"].visible(tk, link("estimator", "tracker"))
+                        if i:
+                            est_box = boards["estimator"].values[i - 1].box
+                            prior = (est_box.cx, est_box.cy)
+                    t0 = clock()
+                    value = _call(b, k, tk, obj.track, img, prior)
+                    wall = clock() - t0
+                    _check_output(value, k, tk)
+            else:  # estimator
+                if first:
+                    t0 = clock()
+                    value = _call(b, k, tk, obj.initialize, init_box, tk)
+                    wall = clock() - t0
+                else:
+                    motions = _take(boards["egomotion"], consumed, "egomotion", tk, link("egomotion", "estimator"))
+                    dets = _take(boards["tracker"], consumed, "tracker", tk, link("tracker", "estimator"))
+                    t0 = clock()
+                    value = _call(b, k, tk, obj.step, tk, motions, dets)
+                    wall = clock() - t0
+                _check_estimate(value, k, tk)
+            wall_ms[b][k] = 1e3 * wall
+            spec = timing.blocks[b]
+            latency = float(spec.latency.draw(rng, wall))
+            if spec.jitter_s > 0:
+                latency += float(rng.normal(0.0, spec.jitter_s))
+            latency = max(0.0, latency)
+            t_pub = tk + latency
+            busy_until[b] = t_pub
+            if t_pub <= t_end + EPS:
+                trace.append(TraceEvent(b, "publish", _first_frame_at(t_pub, fps), t_pub))
+            if first:
+                if b == "estimator":  # the initial estimate (the ground-truth box) is held from t = 0
+                    boards[b].post(value, tk, k, tk)
+            else:
+                boards[b].post(value, tk, k, t_pub)
+
+        # Zero-order hold: the newest output of the output block visible at t_k.
+        ob = boards[out_block]
+        i = ob.visible(tk, link(out_block, "output"))
+        if i == 0:  # nothing reached the output yet: the initial box
+            boxes[k] = init_box.as_array()
+            source[k] = 0
+        else:
+            boxes[k] = ob.values[i - 1].box.as_array()
+            source[k] = ob.k_capture[i - 1]
+        j = boards["tracker"].visible(tk, link("tracker", "output"))
+        if j > 1:
+            confidence[k] = float(boards["tracker"].values[j - 1].confidence)
+
+    duration = n / fps
+    rates = {b: calls[b] / duration for b in active}
+    order = {name: i for i, name in enumerate(LANES)}
+    ev_order = {e: i for i, e in enumerate(EVENTS)}
+    trace.sort(key=lambda e: (e.frame, e.t, order.get(e.block, 99), ev_order[e.event]))
+    return SequenceRun(fps, boxes, delivered.copy(), confidence, source, wall_ms, tuple(trace), rates)
+
+
+def _first_frame_at(t: float, fps: float) -> int:
+    return int(math.ceil(t * fps - 1e-6))
+
+
+def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> list[Stamped]:
+    """Outputs of ``board`` that reached the estimator since its previous tick, oldest first."""
+    i0, i1 = consumed[name], board.visible(t, delay)
+    consumed[name] = max(i0, i1)
+    return [Stamped(board.values[i], board.t_capture[i], board.t_publish[i] + delay) for i in range(i0, i1)]
+
+
+def _call(block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
+    try:
+        return fn(*args)
+    except Exception as exc:
+        raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}") from exc
+
+
+def _check_output(value: Any, k: int, t: float) -> None:
+    if not isinstance(value, TrackerOutput):
+        raise BlockError("tracker", k, t, f"expected a TrackerOutput, got {type(value).__name__}")
+    if not np.all(np.isfinite(value.box.as_array())):
+        raise BlockError("tracker", k, t, f"returned a non-finite box {value.box}")
+
+
+def _check_estimate(value: Any, k: int, t: float) -> None:
+    if not isinstance(value, Estimate):
+        raise BlockError("estimator", k, t, f"expected an Estimate, got {type(value).__name__}")
+    if not np.all(np.isfinite(value.box.as_array())):
+        raise BlockError("estimator", k, t, f"returned a non-finite box {value.box}")

@@ -1,0 +1,125 @@
+"""EOP, the Embedded-Oriented Protocol (paper section 3.1, figure "protocol comparison"): each
+block at its own rate with its own output latency, hardware independent. The paper's setting is
+``tracker_hz: 10`` with a one-period latency (the output of frame 3 is visible from frame 6) and
+ego-motion and estimator at the camera rate with none.
+
+Beyond the paper (its discussion names these as limitations): latencies drawn per call from a
+measured timing profile (``latency_profile``), communication delays on links
+(``link_delay_s: {"tracker->estimator": 0.02}``) and per-call jitter (``jitter_s``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from mata_eval.hooks import hookimpl
+from mata_eval.params import param
+from mata_eval.scheduler import BLOCKS, BlockTiming, FixedLatency, Latency, ProfileLatency, Timing
+from mata_eval.timing_profile import TimingProfile, read_profile
+
+CONSUMERS = BLOCKS + ("output",)
+_LATENCY_HELP = "'period' (one period of its rate), 'none', seconds, or 'profile' (drawn from latency_profile)"
+_RATE_HELP = "Hz, null (camera rate) or 'profile' (the profile's effective rate)"
+
+
+def _check_rate(key: str, value: Any) -> None:
+    if value is None or value == "profile":
+        return
+    if isinstance(value, str) or not (value > 0 and math.isfinite(value)):
+        raise ValueError(f"eop: {key}: expected {_RATE_HELP}, got {value!r}")
+
+
+def _check_latency(key: str, value: Any) -> None:
+    if value in ("period", "none", "profile"):
+        return
+    if isinstance(value, str) or not (value >= 0 and math.isfinite(value)):
+        raise ValueError(f"eop: {key}: expected {_LATENCY_HELP}, got {value!r}")
+
+
+def parse_link(key: str) -> tuple[str, str]:
+    """``"tracker->estimator"`` -> ``("tracker", "estimator")``; consumers include ``output``."""
+    parts = [p.strip() for p in str(key).split("->")]
+    if len(parts) != 2 or parts[0] not in BLOCKS or parts[1] not in CONSUMERS or parts[0] == parts[1]:
+        raise ValueError(f"eop: link_delay_s: key {key!r}: expected 'producer->consumer' with producer in "
+                         f"{', '.join(BLOCKS)} and consumer in {', '.join(CONSUMERS)}")
+    return parts[0], parts[1]
+
+
+class EOP:
+    """Embedded-oriented protocol: per-block rates and output latencies (optionally measured)."""
+
+    name = "eop"
+
+    @dataclass(frozen=True)
+    class Params:
+        tracker_hz: float | str | None = param(None, f"tracker rate: {_RATE_HELP}")
+        tracker_latency: float | str = param("period", f"tracker output latency: {_LATENCY_HELP}")
+        egomotion_hz: float | str | None = param(None, f"ego-motion rate: {_RATE_HELP}")
+        egomotion_latency: float | str = param("none", f"ego-motion output latency: {_LATENCY_HELP}")
+        estimator_hz: float | str | None = param(None, f"estimator rate: {_RATE_HELP}")
+        estimator_latency: float | str = param("none", f"estimator output latency: {_LATENCY_HELP}")
+        latency_profile: str | None = param(None, "timing profile file (mata-eval profile) for 'profile' rates/latencies")
+        link_delay_s: dict = param({}, "communication delays, e.g. {'tracker->estimator': 0.02} (consumer 'output' = scoring)")
+        jitter_s: float | dict = param(0.0, "std (s) of Gaussian per-call latency jitter: one value, or per block")
+
+        def __post_init__(self) -> None:
+            uses_profile = False
+            for b in BLOCKS:
+                rate, lat = getattr(self, f"{b}_hz"), getattr(self, f"{b}_latency")
+                _check_rate(f"{b}_hz", rate)
+                _check_latency(f"{b}_latency", lat)
+                uses_profile |= rate == "profile" or lat == "profile"
+            if uses_profile and not self.latency_profile:
+                raise ValueError("eop: latency_profile: a rate or latency is 'profile', so a timing profile "
+                                 "file must be given")
+            for key, value in self.link_delay_s.items():
+                parse_link(key)
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                    raise ValueError(f"eop: link_delay_s.{key}: expected seconds >= 0, got {value!r}")
+            jit = self.jitter_s if isinstance(self.jitter_s, dict) else {b: self.jitter_s for b in BLOCKS}
+            for key, value in jit.items():
+                if key not in BLOCKS:
+                    raise ValueError(f"eop: jitter_s: unknown block {key!r}; blocks: {', '.join(BLOCKS)}")
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                    raise ValueError(f"eop: jitter_s.{key}: expected seconds >= 0, got {value!r}")
+
+    def __init__(self, params: Params | None = None):
+        self.params = params or self.Params()
+        p = self.params
+        self.profile: TimingProfile | None = read_profile(p.latency_profile) if p.latency_profile else None
+        self.links = {parse_link(k): float(v) for k, v in p.link_delay_s.items()}
+        jit = p.jitter_s if isinstance(p.jitter_s, dict) else {b: p.jitter_s for b in BLOCKS}
+        self.jitter = {b: float(jit.get(b, 0.0)) for b in BLOCKS}
+
+    def _block_profile(self, block: str):
+        assert self.profile is not None
+        return self.profile.block(block, f"eop latency_profile {self.params.latency_profile}")
+
+    def block_timing(self, block: str, fps: float) -> BlockTiming:
+        rate = getattr(self.params, f"{block}_hz")
+        lat = getattr(self.params, f"{block}_latency")
+        if rate is None:
+            hz = fps
+        elif rate == "profile":
+            hz = self._block_profile(block).rate_hz
+        else:
+            hz = float(rate)
+        latency: Latency
+        if lat == "period":
+            latency = FixedLatency(1.0 / min(hz, fps))  # a block cannot run faster than the camera
+        elif lat == "none":
+            latency = FixedLatency(0.0)
+        elif lat == "profile":
+            latency = ProfileLatency(self._block_profile(block))
+        else:
+            latency = FixedLatency(float(lat))
+        return BlockTiming(hz, latency, self.jitter[block])
+
+    def timing(self, fps: float) -> Timing:
+        return Timing(fps, {b: self.block_timing(b, fps) for b in BLOCKS}, self.links)
+
+
+@hookimpl
+def mata_eval_protocols():
+    return [EOP]

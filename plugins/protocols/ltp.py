@@ -1,0 +1,29 @@
+"""LTP, the long-term protocol (paper section 3.1): every block on every frame, no latency."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mata_eval.hooks import hookimpl
+from mata_eval.scheduler import Timing, every_frame
+
+
+class LTP:
+    """Long-term protocol: every block processes every frame with no delay (offline evaluation)."""
+
+    name = "ltp"
+
+    @dataclass(frozen=True)
+    class Params:
+        pass
+
+    def __init__(self, params: Params | None = None):
+        self.params = params or self.Params()
+
+    def timing(self, fps: float) -> Timing:
+        return every_frame(fps)
+
+
+@hookimpl
+def mata_eval_protocols():
+    return [LTP]
