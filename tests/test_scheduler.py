@@ -1,0 +1,323 @@
+"""Exact timelines of the scheduler, checked against hand-computed expectations with fake blocks
+whose outputs encode the frame they saw (DESIGN.md "One scheduler, four protocols")."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mata_eval.scheduler import (BlockError, BlockTiming, FixedLatency, Timing, read_trace_csv,
+                                 run_sequence, turn_frames)
+from mata_eval.sequence import FrameReadError, Sequence
+from mata_eval.types import Box, Estimate, Motion, TrackerOutput
+from mata_eval_plugins.protocols.dsp import DSP
+from mata_eval_plugins.protocols.eop import EOP
+from mata_eval_plugins.protocols.ltp import LTP
+from mata_eval_plugins.protocols.vot_rt import VotRealTime
+
+INIT = Box(-1.0, 0.0, 10.0, 10.0)
+
+
+def make_sequence(n=30, fps=30.0, frame_of=lambda k: k, reads=None, broken=None):
+    """Tiny sequence whose frame k is a 2x2 image filled with ``frame_of(k)``."""
+    gt = np.tile(INIT.as_array(), (n, 1))
+
+    def loader(k):
+        if reads is not None:
+            reads.append(k)
+        if broken is not None and k == broken:
+            raise FrameReadError(f"cannot read frame {k} of sequence 'toy': missing.jpg")
+        return np.full((2, 2, 3), frame_of(k), dtype=np.uint8)
+
+    return Sequence("toy", gt, fps=fps, loader=loader)
+
+
+class FrameTracker:
+    """Returns a box whose x is the frame index it saw; logs (frame, prior) per call."""
+
+    def __init__(self, fail_at=None, nan_at=None, clock=None, cost_s=0.0):
+        self.calls = []
+        self.fail_at, self.nan_at, self.clock, self.cost_s = fail_at, nan_at, clock, cost_s
+
+    def _spend(self):
+        if self.clock is not None:
+            self.clock.now += self.cost_s
+
+    def initialize(self, image, box):
+        self._spend()
+        self.calls.append(("init", int(image[0, 0, 0]), None))
+
+    def track(self, image, prior=None):
+        self._spend()
+        k = int(image[0, 0, 0])
+        self.calls.append(("track", k, prior))
+        if k == self.fail_at:
+            raise ValueError("boom")
+        x = math.nan if k == self.nan_at else float(k)
+        return TrackerOutput(Box(x, 0.0, 10.0, 10.0), confidence=k / 100.0)
+
+
+class FrameEgoMotion:
+    """H is a translation whose x is the current frame and y the previous frame given."""
+
+    def __init__(self):
+        self.prev = None
+
+    def initialize(self, image):
+        self.prev = int(image[0, 0, 0])
+
+    def estimate(self, image):
+        k = int(image[0, 0, 0])
+        H = np.array([[1.0, 0.0, k], [0.0, 1.0, self.prev], [0.0, 0.0, 1.0]])
+        self.prev = k
+        return Motion(H)
+
+
+class LogEstimator:
+    """Logs its inputs; its estimate is the newest detection's box (or its last one) with y = t."""
+
+    def __init__(self):
+        self.ticks = []
+        self.box = None
+
+    def initialize(self, box, t):
+        self.box = box
+        self.ticks.append(("init", t, [], []))
+        return Estimate(box)
+
+    def step(self, t, motions=(), detections=()):
+        self.ticks.append((t, [(m.value.H[0, 2], m.value.H[1, 2], m.t_capture, m.t_publish) for m in motions],
+                           [(d.value.box.x, d.t_capture, d.t_publish) for d in detections]))
+        if detections:
+            self.box = detections[-1].value.box
+        self.box = Box(self.box.x, t, self.box.w, self.box.h)
+        return Estimate(self.box)
+
+
+def events(run, block, event):
+    return [e.frame for e in run.trace if e.block == block and e.event == event]
+
+
+def test_turn_grid():
+    assert np.flatnonzero(turn_frames(30, 5.0, 30.0)).tolist() == [0, 6, 12, 18, 24]
+    assert np.flatnonzero(turn_frames(16, 7.5, 30.0)).tolist() == [0, 4, 8, 12]
+    # 12 Hz on 30 Hz: ticks at 2.5-frame spacing, taken at the first frame at or after each tick.
+    assert np.flatnonzero(turn_frames(11, 12.0, 30.0)).tolist() == [0, 3, 5, 8, 10]
+    assert turn_frames(5, 60.0, 30.0).all()
+
+
+def test_5hz_tracker_starts_every_sixth_frame_and_is_scored_one_period_later():
+    reads = []
+    seq = make_sequence(30, reads=reads)
+    run = run_sequence(seq, FrameTracker(), None, None, EOP(EOP.Params(tracker_hz=5.0)),
+                       np.random.default_rng(0))
+    assert events(run, "tracker", "start") == [0, 6, 12, 18, 24]
+    assert events(run, "tracker", "publish") == [6, 12, 18, 24]  # the one at t = 1.0 s is past the end
+    x = run.boxes[:, 0]
+    expected = np.repeat([-1, -1, 6, 12, 18], 6)  # init box held until frame 6's result at 12
+    np.testing.assert_array_equal(x, expected)
+    assert np.all(np.isnan(run.confidence[:12]))
+    np.testing.assert_allclose(run.confidence[12:], np.repeat([0.06, 0.12, 0.18], 6))
+    np.testing.assert_array_equal(run.source_frame, expected.clip(0))
+    assert reads == [0, 6, 12, 18, 24]  # images read only where a block starts
+    assert run.rates_hz["tracker"] == pytest.approx(5.0)
+    assert run.scored.all()
+    started = np.isfinite(run.wall_ms["tracker"])
+    assert np.flatnonzero(started).tolist() == [0, 6, 12, 18, 24]
+
+
+def test_ltp_mata_order_and_feedback():
+    tracker, est = FrameTracker(), LogEstimator()
+    run = run_sequence(make_sequence(6), tracker, FrameEgoMotion(), est, LTP(), np.random.default_rng(0))
+    # Each frame: ego-motion, then the tracker (prior = the estimate of the previous frame), then the
+    # estimator, which already sees this frame's detection (zero latency): output x = k.
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1, 1, 2, 3, 4, 5])
+    assert [c[1] for c in tracker.calls] == [0, 1, 2, 3, 4, 5]
+    priors = [c[2] for c in tracker.calls[1:]]
+    assert priors[0] == pytest.approx((INIT.cx, 5.0))  # the initial estimate
+    for k, prior in enumerate(priors[1:], start=2):
+        assert prior == pytest.approx((k - 1 + 5.0, (k - 1) / 30 + 5.0))
+    for k, (t, motions, dets) in enumerate(est.ticks[1:], start=1):
+        assert t == pytest.approx(k / 30)
+        assert motions == [(k, k - 1, pytest.approx(k / 30), pytest.approx(k / 30))]
+        assert dets == [(k, pytest.approx(k / 30), pytest.approx(k / 30))]
+
+
+def test_no_feedback_gives_no_prior():
+    tracker = FrameTracker()
+    run_sequence(make_sequence(5), tracker, FrameEgoMotion(), LogEstimator(), LTP(),
+                 np.random.default_rng(0), feedback=False)
+    assert all(c[2] is None for c in tracker.calls)
+
+
+def test_eop_10hz_mata_hand_timeline():
+    tracker, est = FrameTracker(), LogEstimator()
+    run = run_sequence(make_sequence(12), tracker, FrameEgoMotion(), est,
+                       EOP(EOP.Params(tracker_hz=10.0)), np.random.default_rng(0))
+    assert events(run, "tracker", "start") == [0, 3, 6, 9]
+    assert events(run, "egomotion", "start") == list(range(12))
+    assert events(run, "estimator", "start") == list(range(12))
+    # Tracker busy from 0 (init) to 3, from 3 to 6, ...: its detection of frame 3 reaches the
+    # estimator at frame 6 with its capture time, that of frame 6 at frame 9.
+    dets = {round(t * 30): d for t, m, d in est.ticks[1:]}
+    assert {k for k, d in dets.items() if d} == {6, 9}
+    assert dets[6] == [(3.0, pytest.approx(0.1), pytest.approx(0.2))]
+    assert dets[9] == [(6.0, pytest.approx(0.2), pytest.approx(0.3))]
+    # The estimator outputs at every frame (y = t), holding the detection's x.
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1] * 6 + [3] * 3 + [6] * 3)
+    np.testing.assert_allclose(run.boxes[1:, 1], np.arange(1, 12) / 30)
+    # The prior of the tracker at frames 3, 6, 9 is the estimate of frames 2, 5, 8.
+    priors = [c[2] for c in tracker.calls[1:]]
+    assert [p[1] - 5.0 for p in priors] == pytest.approx([2 / 30, 5 / 30, 8 / 30])
+    assert [p[0] - 5.0 for p in priors] == pytest.approx([-1, -1, 3])
+
+
+def test_eop_at_camera_rate_with_zero_latency_equals_ltp_frame_for_frame():
+    runs = []
+    for proto in (LTP(), EOP(EOP.Params(tracker_hz=30.0, tracker_latency="none"))):
+        tracker, est = FrameTracker(), LogEstimator()
+        runs.append((run_sequence(make_sequence(20), tracker, FrameEgoMotion(), est, proto,
+                                  np.random.default_rng(0)), tracker.calls, est.ticks))
+    (a, ca, ea), (b, cb, eb) = runs
+    np.testing.assert_array_equal(a.boxes, b.boxes)
+    np.testing.assert_array_equal(a.confidence, b.confidence)
+    assert ca == cb and ea == eb
+    assert [e[:3] for e in a.trace] == [e[:3] for e in b.trace]
+
+
+def test_dsp_equals_ltp_on_a_subsampled_copy():
+    n, fps = 30, 30.0
+    full = make_sequence(n, fps)
+    sub = make_sequence(n // 3, fps / 3, frame_of=lambda j: 3 * j)
+    t1, e1 = FrameTracker(), LogEstimator()
+    t2, e2 = FrameTracker(), LogEstimator()
+    a = run_sequence(full, t1, FrameEgoMotion(), e1, DSP(DSP.Params(n=3)), np.random.default_rng(0))
+    b = run_sequence(sub, t2, FrameEgoMotion(), e2, LTP(), np.random.default_rng(0))
+    np.testing.assert_array_equal(a.scored, np.arange(n) % 3 == 0)
+    np.testing.assert_allclose(a.boxes[a.scored], b.boxes, rtol=1e-12)
+    assert t1.calls == t2.calls
+    assert len(e1.ticks) == len(e2.ticks) == 10
+    for x, y in zip(e1.ticks[1:], e2.ticks[1:]):
+        assert x[0] == pytest.approx(y[0]) and x[2] == pytest.approx(y[2]) and x[1] == pytest.approx(y[1])
+    # Dropped frames hold the previous kept frame's output and are marked unscored.
+    np.testing.assert_array_equal(a.boxes[1:3, 0], [-1, -1])
+    np.testing.assert_array_equal(a.boxes[4:6, 0], [3, 3])
+    assert events(a, "camera", "skip") == [k for k in range(n) if k % 3]
+
+
+def test_busy_block_skips_its_turn_without_queueing():
+    proto = EOP(EOP.Params(tracker_latency=0.05))  # camera rate, 1.5 frames of latency
+    run = run_sequence(make_sequence(10), FrameTracker(), None, None, proto, np.random.default_rng(0))
+    assert events(run, "tracker", "start") == [0, 2, 4, 6, 8]
+    assert events(run, "tracker", "skip") == [1, 3, 5, 7, 9]
+    # Frame 2's result is published at 3.5 frames, i.e. visible from frame 4.
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1, -1, -1, -1, 2, 2, 4, 4, 6, 6])
+    pub = [e for e in run.trace if e.block == "tracker" and e.event == "publish"]
+    assert [e.t for e in pub] == pytest.approx([0.05, 2 / 30 + 0.05, 4 / 30 + 0.05, 6 / 30 + 0.05, 8 / 30 + 0.05][:len(pub)])
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+def test_vot_realtime_uses_measured_wall_time():
+    clock = FakeClock()
+    tracker = FrameTracker(clock=clock, cost_s=0.07)  # 2.1 frames per call at 30 fps
+    run = run_sequence(make_sequence(12), tracker, None, None, VotRealTime(), np.random.default_rng(0),
+                       clock=clock)
+    assert events(run, "tracker", "start") == [0, 3, 6, 9]
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1] * 6 + [3] * 3 + [6] * 3)
+    np.testing.assert_allclose(run.wall_ms["tracker"][[0, 3, 6, 9]], 70.0)
+    # Twice as slow: 4.2 frames per call.
+    clock2 = FakeClock()
+    run2 = run_sequence(make_sequence(12), FrameTracker(clock=clock2, cost_s=0.07), None, None,
+                        VotRealTime(VotRealTime.Params(time_scale=2.0)), np.random.default_rng(0), clock=clock2)
+    assert events(run2, "tracker", "start") == [0, 5, 10]
+
+
+def test_vot_realtime_on_a_fast_machine_equals_ltp():
+    clock = FakeClock()
+    a = run_sequence(make_sequence(10), FrameTracker(clock=clock, cost_s=0.001), None, None, VotRealTime(),
+                     np.random.default_rng(0), clock=clock)
+    b = run_sequence(make_sequence(10), FrameTracker(), None, None, LTP(), np.random.default_rng(0))
+    # A 1 ms tracker publishes before the next frame, so it gets every frame, one frame late.
+    assert events(a, "tracker", "start") == list(range(10))
+    np.testing.assert_array_equal(a.boxes[1:, 0], b.boxes[:-1, 0])
+
+
+def test_link_delays():
+    proto = EOP(EOP.Params(tracker_latency="none", link_delay_s={"tracker->output": 0.05,
+                                                                 "tracker->estimator": 0.1}))
+    run = run_sequence(make_sequence(8), FrameTracker(), None, None, proto, np.random.default_rng(0))
+    # Published at t_k, seen by the scoring 0.05 s (1.5 frames) later: from frame k + 2.
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1, -1, -1, 1, 2, 3, 4, 5])
+    assert events(run, "tracker", "start") == list(range(8))  # the link does not block the tracker
+    est = LogEstimator()
+    run = run_sequence(make_sequence(8), FrameTracker(), None, est, proto, np.random.default_rng(0))
+    dets = {round(t * 30): d for t, m, d in est.ticks[1:]}
+    assert dets[4] == [(1.0, pytest.approx(1 / 30), pytest.approx(4 / 30))]  # arrival time stamped
+    assert dets[3] == []
+
+
+def test_egomotion_at_its_own_rate_chains_frames():
+    est = LogEstimator()
+    run_sequence(make_sequence(7), FrameTracker(), FrameEgoMotion(), est,
+                 EOP(EOP.Params(egomotion_hz=15.0, tracker_latency="none")), np.random.default_rng(0))
+    motions = [(round(t * 30), m) for t, m, d in est.ticks[1:] if m]
+    assert [(k, [(a, b) for a, b, *_ in m]) for k, m in motions] == [(2, [(2, 0)]), (4, [(4, 2)]), (6, [(6, 4)])]
+
+
+def test_profile_like_latency_and_jitter_are_seeded():
+    proto = EOP(EOP.Params(tracker_latency=0.1, jitter_s=0.02))
+    runs = [run_sequence(make_sequence(300, frame_of=lambda k: k % 256), FrameTracker(), None, None, proto, np.random.default_rng(s))
+            for s in (1, 1, 2)]
+    assert runs[0].trace == runs[1].trace and runs[0].trace != runs[2].trace
+    # Monte-Carlo: publish - start ~ N(0.1, 0.02) clipped at 0 (clipping is negligible here).
+    starts = [e.t for e in runs[0].trace if e.block == "tracker" and e.event == "start"]
+    pubs = [e.t for e in runs[0].trace if e.block == "tracker" and e.event == "publish"]
+    lat = np.array(pubs) - np.array(starts[:len(pubs)])
+    assert len(lat) > 60
+    assert abs(lat.mean() - 0.1) < 4 * 0.02 / math.sqrt(len(lat))
+    assert 0.014 < lat.std() < 0.026
+
+
+def test_tracker_failures_name_block_and_frame():
+    with pytest.raises(BlockError, match=r"tracker failed at frame 3 .*ValueError: boom"):
+        run_sequence(make_sequence(6), FrameTracker(fail_at=3), None, None, LTP(), np.random.default_rng(0))
+    with pytest.raises(BlockError, match=r"tracker failed at frame 2 .*non-finite"):
+        run_sequence(make_sequence(6), FrameTracker(nan_at=2), None, None, LTP(), np.random.default_rng(0))
+    # An unreadable frame is not the tracker's fault: the read error comes out as it is.
+    with pytest.raises(FrameReadError, match="cannot read frame 4"):
+        run_sequence(make_sequence(6, broken=4), FrameTracker(), None, None, LTP(), np.random.default_rng(0))
+
+
+def test_missing_block_timing_is_reported():
+    class Partial:
+        def timing(self, fps):
+            return Timing(fps, {"tracker": BlockTiming(fps, FixedLatency(0.0))})
+
+    run_sequence(make_sequence(3), FrameTracker(), None, None, Partial(), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="no timing for block 'estimator'"):
+        run_sequence(make_sequence(3), FrameTracker(), None, LogEstimator(), Partial(), np.random.default_rng(0))
+
+
+def test_csv_rows():
+    run = run_sequence(make_sequence(7), FrameTracker(), FrameEgoMotion(), LogEstimator(),
+                       EOP(EOP.Params(tracker_hz=10.0)), np.random.default_rng(0))
+    lines = run.frames_csv().splitlines()
+    assert lines[0] == "frame,scored,confidence,tracker_ms,egomotion_ms,estimator_ms,source_frame"
+    assert len(lines) == 8
+    row3 = lines[4].split(",")
+    assert row3[0] == "3" and row3[1] == "1" and row3[2] == "nan" and row3[3] != "nan"
+    assert lines[2].split(",")[3] == "nan"  # no tracker call started at frame 1
+    assert lines[7].split(",")[-1] == "6"  # the estimator output of frame 6 (computed at frame 6)
+    assert read_trace_csv(run.trace_csv()) == list(run.trace)
+    assert run.trace_csv().splitlines()[0] == "block,event,frame,t"
+    assert ("tracker", "start", 3, pytest.approx(0.1)) == run.trace_rows()[
+        [i for i, r in enumerate(run.trace_rows()) if r[:3] == ("tracker", "start", 3)][0]]
