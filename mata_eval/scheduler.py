@@ -195,7 +195,7 @@ def trace_to_csv(rows: Any) -> str:
     out = io.StringIO()
     out.write("block,event,frame,t\n")
     for block, event, frame, t in rows:
-        out.write(f"{block},{event},{int(frame)},{float(t):.9g}\n")
+        out.write(f"{block},{event},{int(frame)},{float(t)!r}\n")  # repr: exact round trip
     return out.getvalue()
 
 
