@@ -1,0 +1,372 @@
+"""Score a results folder: a mata-eval run folder (architecture.md "Run folder") or a foreign one
+in pysot / pysot-toolkit, got10k or pytracking layout. Only annotations are read, never images.
+
+Layouts (``detect_layout`` picks one; ``layout=`` overrides):
+
+- ``mata``: ``<seq>.txt`` (``x,y,w,h``), ``<seq>.frames.csv`` (``frame,scored,...,<block>_ms``),
+  ``<seq>.failed.json``, ``manifest.json``;
+- ``pysot`` (also pysot-toolkit, got10k OTB/UAV123 experiments): ``<dir>/<seq>.txt``, comma
+  separated floats;
+- ``got10k`` (GOT-10k experiment): ``<dir>/<seq>/<seq>_001.txt`` (first repetition) and
+  ``<dir>/<seq>/<seq>_time.txt`` (seconds per frame);
+- ``pytracking``: ``<dir>/<seq>.txt``, tab separated integers, and ``<dir>/<seq>_time.txt``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence as Seq
+
+import numpy as np
+
+from . import metrics, results
+from .metrics import Aggregate, BlockFrequency, SequenceScores
+from .sequence import Sequence
+
+SCORES = "scores.json"
+LAYOUTS = ("mata", "pysot", "got10k", "pytracking")
+SCORES_FORMAT = 1
+
+
+@dataclass(frozen=True, eq=False)
+class RunScores:
+    """Everything ``scores.json`` holds: per-sequence scores, their aggregates (overall, per
+    attribute, per challenge group), excluded-frame counts, failures and block frequencies."""
+
+    name: str
+    path: str
+    profile: str
+    layout: str
+    sequences: dict[str, SequenceScores]
+    attributes: dict[str, tuple[str, ...]]
+    summary: Aggregate
+    failures: dict[str, str] = field(default_factory=dict)
+    missing: tuple[str, ...] = ()
+    frequencies: dict[str, BlockFrequency] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {
+            "format": SCORES_FORMAT,
+            "name": self.name,
+            "path": self.path,
+            "profile": self.profile,
+            "profile_policies": dataclasses.asdict(metrics.get_profile(self.profile))
+            if self.profile in metrics.PROFILES else None,
+            "layout": self.layout,
+            "summary": self.summary.to_dict(),
+            "sequences": {k: v.to_dict() for k, v in self.sequences.items()},
+            "attributes": {k: list(v) for k, v in self.attributes.items()},
+            "failures": dict(self.failures),
+            "missing": list(self.missing),
+            "frequencies": {k: v.to_dict() for k, v in self.frequencies.items()},
+            "meta": self.meta,
+        }
+
+    @classmethod
+    def from_dict(cls, d: Mapping, source: str = "scores") -> "RunScores":
+        try:
+            return cls(
+                name=d["name"], path=d["path"], profile=d["profile"], layout=d["layout"],
+                sequences={k: SequenceScores.from_dict(v) for k, v in d["sequences"].items()},
+                attributes={k: tuple(v) for k, v in d["attributes"].items()},
+                summary=Aggregate.from_dict(d["summary"]),
+                failures=dict(d.get("failures", {})),
+                missing=tuple(d.get("missing", ())),
+                frequencies={k: BlockFrequency.from_dict(v) for k, v in d.get("frequencies", {}).items()},
+                meta=dict(d.get("meta", {})),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: not a mata-eval scores file ({type(exc).__name__}: {exc})") from None
+
+
+# --- reading results -------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceResult:
+    """What a results folder holds for one sequence."""
+
+    boxes: np.ndarray
+    scored: np.ndarray | None = None
+    wall_ms: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = ""
+
+
+def detect_layout(results_dir: Path) -> str:
+    """``mata`` if the folder has a manifest or frame sidecars; ``got10k`` if it has
+    ``<seq>/<seq>_001.txt``; ``pytracking`` if its prediction files are tab separated;
+    ``pysot`` otherwise. Raises FileNotFoundError when it holds no results at all."""
+    d = Path(results_dir)
+    if not d.is_dir():
+        raise FileNotFoundError(f"results folder not found: {d}")
+    if (d / results.MANIFEST).is_file() or any(d.glob("*.frames.csv")):
+        return "mata"
+    if any((p / f"{p.name}_001.txt").is_file() for p in d.iterdir() if p.is_dir()):
+        return "got10k"
+    txts = sorted(p for p in d.glob("*.txt") if not p.name.endswith("_time.txt"))
+    if not txts:
+        raise FileNotFoundError(
+            f"{d}: no results found (expected <seq>.txt files, or <seq>/<seq>_001.txt for got10k)")
+    first = next((line for line in txts[0].read_text().splitlines() if line.strip()), "")
+    return "pytracking" if "\t" in first else "pysot"
+
+
+def _read_times(path: Path) -> dict[str, np.ndarray]:
+    """A got10k / pytracking ``_time.txt`` (seconds per frame; 0 where the frame was not timed,
+    e.g. got10k's frame 0 is the initialisation) as tracker wall times in ms."""
+    if not path.is_file():
+        return {}
+    try:
+        t = np.loadtxt(path, dtype=float, ndmin=1)
+    except ValueError as exc:
+        raise ValueError(f"{path}: expected one time in seconds per line ({exc})") from None
+    return {"tracker": np.where(t > 0, t * 1000.0, np.nan)}
+
+
+def _parse_flag(v: str, where: str) -> bool:
+    s = v.strip().lower()
+    if s in ("1", "true", "yes", "1.0"):
+        return True
+    if s in ("0", "false", "no", "0.0"):
+        return False
+    raise ValueError(f"{where}: expected 1/0 or true/false in column 'scored', got {v!r}")
+
+
+def read_frames_csv(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """``<seq>.frames.csv`` -> (scored mask, {block: wall ms per frame, NaN where not started})."""
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f))
+    if not rows or "scored" not in rows[0]:
+        raise ValueError(f"{path}: expected a header with a 'scored' column, got {rows[0] if rows else 'an empty file'}")
+    head = rows[0]
+    body = [r for r in rows[1:] if r]
+    i_scored = head.index("scored")
+    scored = np.array([_parse_flag(r[i_scored], f"{path}:{n}") for n, r in enumerate(body, start=2)], dtype=bool)
+    wall = {}
+    for j, name in enumerate(head):
+        if name.endswith("_ms"):
+            vals = []
+            for n, r in enumerate(body, start=2):
+                try:
+                    vals.append(float(r[j]) if r[j].strip() != "" else np.nan)
+                except (ValueError, IndexError):
+                    raise ValueError(f"{path}:{n}: column {name!r}: expected a number of ms or empty, "
+                                     f"got {r[j] if j < len(r) else '(missing)'!r}") from None
+            wall[name[:-3]] = np.array(vals, dtype=float)
+    return scored, wall
+
+
+def read_results(results_dir: Path, layout: str = "auto") -> tuple[str, dict[str, SequenceResult]]:
+    """All sequence results of a folder as (layout, {sequence: result})."""
+    d = Path(results_dir)
+    layout = detect_layout(d) if layout == "auto" else layout
+    if layout not in LAYOUTS:
+        raise ValueError(f"unknown results layout {layout!r}; expected auto or one of {', '.join(LAYOUTS)}")
+    out: dict[str, SequenceResult] = {}
+    if layout == "got10k":
+        for sub in sorted(p for p in d.iterdir() if p.is_dir()):
+            f = sub / f"{sub.name}_001.txt"
+            if f.is_file():
+                out[sub.name] = SequenceResult(results.read_predictions(f), None,
+                                               _read_times(sub / f"{sub.name}_time.txt"), str(f))
+        return layout, out
+    for f in sorted(d.glob("*.txt")):
+        if f.name.endswith("_time.txt"):
+            continue
+        name = f.stem
+        scored, wall = None, {}
+        if layout == "mata":
+            fc = d / f"{name}.frames.csv"
+            if fc.is_file():
+                scored, wall = read_frames_csv(fc)
+        elif layout == "pytracking":
+            wall = _read_times(d / f"{name}_time.txt")
+        out[name] = SequenceResult(results.read_predictions(f), scored, wall, str(f))
+    return layout, out
+
+
+# --- scoring ---------------------------------------------------------------------------------
+
+
+def score_results(
+    found: Mapping[str, SequenceResult],
+    sequences: Iterable[Sequence],
+    profile: str = "default",
+    groups: Mapping[str, Iterable[str]] | None = None,
+) -> tuple[dict[str, SequenceScores], dict[str, tuple[str, ...]], Aggregate, list[str], dict[str, BlockFrequency]]:
+    """Score the results of each sequence against its ground truth (annotations only)."""
+    per_seq: dict[str, SequenceScores] = {}
+    attrs: dict[str, tuple[str, ...]] = {}
+    missing: list[str] = []
+    freqs = []
+    for seq in sequences:
+        res = found.get(seq.name)
+        if res is None:
+            missing.append(seq.name)
+            continue
+        scored = res.scored
+        if scored is not None and len(scored) != len(seq):
+            raise ValueError(f"{res.source}: frames.csv has {len(scored)} rows, sequence {seq.name!r} has {len(seq)} frames")
+        try:
+            per_seq[seq.name] = metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile,
+                                                       scored=scored, annotated=seq.annotated)
+        except ValueError as exc:
+            raise ValueError(f"{res.source}: {exc}") from None
+        attrs[seq.name] = tuple(sorted(seq.attributes))
+        if res.wall_ms:
+            freqs.append(metrics.block_frequencies(res.wall_ms, len(seq), seq.fps))
+    summary = metrics.aggregate(((per_seq[n], attrs[n]) for n in per_seq), groups)
+    return per_seq, attrs, summary, missing, metrics.combine_frequencies(freqs)
+
+
+def evaluate_results(
+    results_dir: Path,
+    sequences: Iterable[Sequence],
+    profile: str = "default",
+    layout: str = "auto",
+    name: str | None = None,
+    groups: Mapping[str, Iterable[str]] | None = None,
+) -> RunScores:
+    """Score any results folder (no file is written). Sequences without results are listed in
+    ``missing``; failed sequences of a mata run folder in ``failures``."""
+    d = Path(results_dir)
+    metrics.get_profile(profile)  # fail early on a bad name
+    sequences = list(sequences)
+    layout, found = read_results(d, layout)
+    failures = results.read_failures(d) if layout == "mata" else {}
+    per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups)
+    manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
+    known = {s.name for s in sequences}
+    meta = {
+        "experiment": manifest.get("experiment"),
+        "config_hash": manifest.get("config_hash"),
+        "dataset": (manifest.get("config") or {}).get("dataset", {}).get("name")
+        if isinstance((manifest.get("config") or {}).get("dataset"), dict) else None,
+        "unmatched_results": sorted(set(found) - known),
+    }
+    return RunScores(
+        name=name or manifest.get("run") or d.name,
+        path=str(d),
+        profile=profile,
+        layout=layout,
+        sequences=per_seq,
+        attributes=attrs,
+        summary=summary,
+        failures={k: v for k, v in failures.items()},
+        missing=tuple(m for m in missing if m not in failures),
+        frequencies=freqs,
+        meta=meta,
+    )
+
+
+def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "default") -> RunScores:
+    """Score a mata-eval run folder and write ``<run>/scores.json`` atomically."""
+    scores = evaluate_results(run_dir, sequences, profile, layout="mata")
+    save_scores(run_dir, scores)
+    return scores
+
+
+def save_scores(out_dir: Path, scores: RunScores) -> Path:
+    path = Path(out_dir) / SCORES
+    results.write_json(path, scores.to_dict())
+    return path
+
+
+def load_scores(run_dir: Path) -> RunScores:
+    """Read ``<run>/scores.json`` (or a scores file given directly)."""
+    p = Path(run_dir)
+    path = p if p.is_file() else p / SCORES
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no scores file (run `mata-eval eval` or `mata-eval run` first)")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: invalid JSON ({exc})") from None
+    return RunScores.from_dict(data, source=str(path))
+
+
+# --- CLI -------------------------------------------------------------------------------------
+
+
+def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list[Sequence]:
+    """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
+    from .params import build_params
+    from .registry import load_registry
+
+    cls = load_registry().get("dataset", name).cls
+    values = dict(extra or {})
+    if root is not None:
+        values["root"] = root
+    return list(cls(build_params(cls.Params, values)).sequences())
+
+
+def _parse_sets(items: Seq[str] | None) -> dict[str, Any]:
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            import yaml
+
+            out[key] = yaml.safe_load(value)
+        except Exception:
+            out[key] = value
+    return out
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .report import render_table
+
+    try:
+        seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))
+        layout = args.layout
+        if layout == "mata" or (layout == "auto" and detect_layout(Path(args.results_dir)) == "mata"):
+            scores = evaluate_results(args.results_dir, seqs, args.profile, layout="mata")
+            if not args.no_save:
+                print(f"wrote {save_scores(args.results_dir, scores)}")
+        else:
+            scores = evaluate_results(args.results_dir, seqs, args.profile, layout=layout, name=args.name)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    if args.output:
+        print(f"wrote {save_scores(Path(args.output), scores)}")
+    print(render_table([scores], "terminal"))
+    if args.challenges:
+        print(render_table([scores], "terminal", table="challenges"))
+    if scores.missing:
+        print(f"{len(scores.missing)} sequence(s) without results: {', '.join(scores.missing[:10])}"
+              + (" ..." if len(scores.missing) > 10 else ""))
+    if scores.meta.get("unmatched_results"):
+        un = scores.meta["unmatched_results"]
+        print(f"{len(un)} result file(s) match no sequence of {args.dataset}: {', '.join(un[:10])}"
+              + (" ..." if len(un) > 10 else ""))
+    return 0 if scores.sequences else 1
+
+
+def add_cli(subparsers) -> None:
+    p = subparsers.add_parser(
+        "eval", help="score a results folder (mata-eval run, pysot, got10k or pytracking layout)",
+        description="Score a results folder against a dataset's annotations (no images are read) and "
+                    "print the table. A mata-eval run folder gets its scores.json (re)written.")
+    p.add_argument("results_dir", metavar="RESULTS_DIR", help="folder with one result file per sequence")
+    p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
+    p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="another dataset parameter (repeatable)")
+    p.add_argument("--layout", choices=("auto",) + LAYOUTS, default="auto",
+                   help="results layout (default: detected)")
+    p.add_argument("--profile", choices=tuple(metrics.PROFILES), default="default",
+                   help="metric compatibility profile (default: %(default)s)")
+    p.add_argument("--name", help="run name shown in the table (default: the folder name)")
+    p.add_argument("--output", help="also write scores.json into this folder")
+    p.add_argument("--no-save", action="store_true", help="do not write scores.json into a mata run folder")
+    p.add_argument("--challenges", action="store_true", help="also print the per-challenge table")
+    p.set_defaults(func=cmd_eval)
