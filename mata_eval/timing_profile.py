@@ -105,7 +105,10 @@ def profile_from_samples(samples: Mapping[str, Any], machine: Mapping[str, Any] 
     for name, s in samples.items():
         arr = np.asarray(s, dtype=float).reshape(-1)
         _check_samples(arr, f"samples of block {name!r}")
-        counts, edges = np.histogram(arr, bins=bins)
+        lo, hi = float(arr.min()), float(arr.max())
+        if hi <= lo:  # constant samples: one narrow bin range above the value, never below zero
+            hi = lo + max(1e-6, 1e-3 * lo)
+        counts, edges = np.histogram(arr, bins=bins, range=(lo, hi))
         blocks[name] = BlockProfile(arr, edges, counts.astype(float))
     return TimingProfile(blocks, dict(machine or {}), created)
 

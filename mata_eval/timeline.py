@@ -1,0 +1,194 @@
+"""Timeline plot of a scheduler trace, in the style of the paper's protocol-comparison figure
+(section 3.1, fig. "protocol comparison"): one lane per block, a bar from each call's start to
+its publish, skipped turns, and the held (zero-order-hold) output with the frame it comes from.
+
+``mata-eval timeline RUN_DIR SEQ [--out PNG] [--frames A:B]`` draws ``RUN_DIR/SEQ.trace.csv``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Sequence
+
+from .scheduler import BLOCKS, LANES, TraceEvent, read_trace_csv
+
+COLORS = {"camera": "#7f7f7f", "egomotion": "#2ca02c", "tracker": "#1f77b4", "estimator": "#d62728"}
+
+
+@dataclass(frozen=True)
+class Call:
+    """One call of a block: started at frame ``frame`` (time ``t_start``), published at
+    ``t_publish`` (None: still running when the sequence ended)."""
+
+    block: str
+    frame: int
+    t_start: float
+    t_publish: float | None
+
+
+def _rows(trace_rows: Iterable[Sequence]) -> list[TraceEvent]:
+    return [TraceEvent(str(b), str(e), int(f), float(t)) for b, e, f, t in trace_rows]
+
+
+def calls_from_trace(trace_rows: Iterable[Sequence]) -> dict[str, list[Call]]:
+    """Pair each block's starts with its publishes. A block never overlaps its own calls, so
+    the i-th publish belongs to the i-th start."""
+    rows = _rows(trace_rows)
+    out: dict[str, list[Call]] = {}
+    for block in BLOCKS:
+        starts = [r for r in rows if r.block == block and r.event == "start"]
+        pubs = sorted(r.t for r in rows if r.block == block and r.event == "publish")
+        if not starts:
+            continue
+        out[block] = [Call(block, s.frame, s.t, pubs[i] if i < len(pubs) else None)
+                      for i, s in enumerate(starts)]
+    return out
+
+
+def infer_fps(trace_rows: Iterable[Sequence], default: float = 30.0) -> float:
+    """Camera rate from the trace (``frame / t`` of any start or camera event after frame 0)."""
+    for r in _rows(trace_rows):
+        if (r.block == "camera" or r.event in ("start", "skip")) and r.frame > 0 and r.t > 0:
+            return r.frame / r.t
+    return default
+
+
+def held_segments(trace_rows: Iterable[Sequence], n_frames: int | None = None) -> list[tuple[float, float, int]]:
+    """The scored output over time as ``(t_from, t_to, capture_frame)`` segments: the output
+    block is the estimator when the trace has one, else the tracker; its initialisation
+    publishes nothing, so the initial box (capture frame 0) is held until its first output.
+    Link delays to the scoring are not in the trace and are not drawn."""
+    rows = _rows(trace_rows)
+    calls = calls_from_trace(rows)
+    block = "estimator" if "estimator" in calls else "tracker"
+    fps = infer_fps(rows)
+    t_end = (n_frames if n_frames is not None else max((r.frame for r in rows), default=0) + 1) / fps
+    pubs = [(c.t_publish, c.frame) for c in calls.get(block, [])[1:] if c.t_publish is not None]
+    if block == "estimator":  # the estimator's initial estimate (the ground-truth box) holds from t = 0
+        pubs = [(0.0, 0)] + pubs
+    segs: list[tuple[float, float, int]] = []
+    t_prev, src = 0.0, 0
+    for t, frame in pubs:
+        if t > t_prev:
+            segs.append((t_prev, t, src))
+        t_prev, src = t, frame
+    if t_end > t_prev:
+        segs.append((t_prev, t_end, src))
+    return segs
+
+
+def plot_timeline(trace_rows: Iterable[Sequence], path: str | Path, frames: tuple[int, int] | None = None,
+                  title: str | None = None, fps: float | None = None) -> Path:
+    """Draw a trace as the paper's protocol figure and save it (PNG, PDF or SVG by extension).
+
+    ``frames``: the half-open frame range ``(A, B)`` to show (default: the whole trace)."""
+    from matplotlib.figure import Figure  # no pyplot: no global backend state
+
+    rows = _rows(trace_rows)
+    if not rows:
+        raise ValueError("empty trace: nothing to draw")
+    fps = fps or infer_fps(rows)
+    n_frames = max(r.frame for r in rows) + 1
+    a, b = frames if frames is not None else (0, n_frames)
+    if not 0 <= a < b:
+        raise ValueError(f"frame range {a}:{b}: expected 0 <= A < B")
+    calls = calls_from_trace(rows)
+    lanes = [l for l in LANES if l == "camera" or l in calls] + ["output"]
+    y = {lane: len(lanes) - 1 - i for i, lane in enumerate(lanes)}
+
+    width = min(40.0, max(8.0, 0.25 * (b - a) + 3))
+    fig = Figure(figsize=(width, 0.7 * len(lanes) + 1.2))
+    ax = fig.add_subplot()
+    for lane in lanes:
+        ax.axhline(y[lane], color="#dddddd", lw=0.8, zorder=0)
+    for k in range(a, b + 1):
+        ax.axvline(k, color="#f0f0f0", lw=0.6, zorder=0)
+
+    # Camera: delivered frames as ticks, dropped ones (DSP) greyed out.
+    for r in rows:
+        if r.block == "camera" and a <= r.frame < b:
+            ax.plot([r.frame], [y["camera"]], marker="|" if r.event == "publish" else "x", ms=10,
+                    color=COLORS["camera"] if r.event == "publish" else "#cccccc")
+
+    for block, cs in calls.items():
+        for c in cs:
+            x0 = c.t_start * fps
+            x1 = (c.t_publish * fps) if c.t_publish is not None else float(n_frames)
+            if x1 < a or x0 >= b:
+                continue
+            w = max(x1 - x0, 0.12)  # a zero-latency call is drawn as a thin bar
+            ax.broken_barh([(x0, w)], (y[block] - 0.3, 0.6), facecolors=COLORS[block], alpha=0.75,
+                           edgecolor="black", linewidth=0.5)
+            if x1 - x0 >= 0.9:
+                ax.text(x0 + 0.1, y[block], str(c.frame), va="center", ha="left", fontsize=7, color="white")
+        for r in rows:
+            if r.block == block and r.event == "skip" and a <= r.frame < b:
+                ax.plot([r.frame], [y[block]], marker="x", color="black", ms=5)
+
+    # Held output: alternate shades, labelled with the capture frame of the held value.
+    out_block = "estimator" if "estimator" in calls else "tracker"
+    for i, (t0, t1, src) in enumerate(held_segments(rows, n_frames)):
+        x0, x1 = max(t0 * fps, a), min(t1 * fps, b)
+        if x1 <= x0:
+            continue
+        ax.broken_barh([(x0, x1 - x0)], (y["output"] - 0.3, 0.6), facecolors=COLORS[out_block],
+                       alpha=0.25 if i % 2 else 0.45, edgecolor="none")
+        if x1 - x0 >= 0.9:
+            ax.text(x0 + 0.1, y["output"], "init" if (src == 0 and i == 0) else str(src),
+                    va="center", ha="left", fontsize=7)
+
+    ax.set_yticks([y[l] for l in lanes])
+    ax.set_yticklabels([f"held {out_block}" if l == "output" else l for l in lanes])
+    ax.set_xlim(a - 0.2, b + 0.2)
+    ax.set_ylim(-0.7, len(lanes) - 0.3)
+    ax.set_xlabel(f"camera frame ({fps:g} Hz); bars: start -> publish, labelled with the frame processed; x: skipped turn")
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def parse_frames(text: str) -> tuple[int, int]:
+    """``"A:B"`` -> ``(A, B)``."""
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--frames: expected A:B (two integers), got {text!r}") from None
+    if not 0 <= a < b:
+        raise argparse.ArgumentTypeError(f"--frames: expected 0 <= A < B, got {text!r}")
+    return a, b
+
+
+def cmd_timeline(args: argparse.Namespace) -> int:
+    run_dir = Path(args.run_dir)
+    trace_path = run_dir / f"{args.seq}.trace.csv"
+    if not trace_path.is_file():
+        have = sorted(p.name[: -len(".trace.csv")] for p in run_dir.glob("*.trace.csv"))
+        print(f"mata-eval timeline: no trace {trace_path}; sequences with a trace: "
+              f"{', '.join(have) or '(none)'}", file=sys.stderr)
+        return 2
+    try:
+        rows = read_trace_csv(trace_path.read_text())
+    except ValueError as exc:
+        print(f"mata-eval timeline: {trace_path}: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out) if args.out else run_dir / f"{args.seq}.timeline.png"
+    plot_timeline(rows, out, frames=args.frames, title=f"{run_dir.name} / {args.seq}")
+    print(out)
+    return 0
+
+
+def add_cli(subparsers) -> None:
+    p = subparsers.add_parser("timeline", help="draw a sequence's scheduler trace (blocks, starts, publishes, held output)",
+                              description=__doc__)
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run folder holding <SEQ>.trace.csv")
+    p.add_argument("seq", metavar="SEQ", help="sequence name")
+    p.add_argument("--out", help="image file to write (default: RUN_DIR/SEQ.timeline.png)")
+    p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
+                   help="frame range to draw, half-open (default: all; long sequences read best with ~60 frames)")
+    p.set_defaults(func=cmd_timeline)

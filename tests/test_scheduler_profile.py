@@ -1,0 +1,99 @@
+"""Timing profiles: round trips, sampling (Monte-Carlo against the distribution's own moments),
+located errors, and an EOP run whose tracker latency is drawn from a profile."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mata_eval.scheduler import run_sequence
+from mata_eval.timing_profile import (BlockProfile, ProfileError, profile_from_samples, read_profile,
+                                      write_profile)
+from mata_eval_plugins.protocols.eop import EOP
+
+from test_scheduler import FrameTracker, make_sequence
+
+
+@pytest.mark.parametrize("suffix", [".json", ".yaml"])
+def test_round_trip(tmp_path, suffix):
+    samples = {"tracker": [0.08, 0.1, 0.09, 0.12], "egomotion": [0.004, 0.005]}
+    prof = profile_from_samples(samples, {"cpu": "test cpu", "threads": 2}, bins=3, created="2026-01-01")
+    path = write_profile(prof, tmp_path / f"p{suffix}")
+    back = read_profile(path)
+    assert back.machine == {"cpu": "test cpu", "threads": 2} and back.created == "2026-01-01"
+    np.testing.assert_array_equal(back.blocks["tracker"].samples_s, samples["tracker"])
+    np.testing.assert_array_equal(back.blocks["tracker"].hist_counts, [2, 1, 1])
+    assert back.blocks["tracker"].mean_s == pytest.approx(0.0975)
+    assert back.blocks["tracker"].rate_hz == pytest.approx(1 / 0.0975)
+    assert back.blocks["egomotion"].percentiles_s()["50"] == pytest.approx(0.0045)
+
+
+def test_histogram_sampling_matches_its_distribution():
+    # Two bins of equal mass, [0, 1) and [1, 3): mean 0.25 + 1.0 = 1.25, P(x < 1) = 0.5.
+    b = BlockProfile(hist_edges_s=np.array([0.0, 1.0, 3.0]), hist_counts=np.array([5.0, 5.0]))
+    x = b.sample(np.random.default_rng(0), size=40000)
+    assert x.mean() == pytest.approx(1.25, abs=0.02)
+    assert (x < 1).mean() == pytest.approx(0.5, abs=0.01)
+    assert x.min() >= 0 and x.max() <= 3
+    assert b.mean_s == pytest.approx(1.25)
+    assert b.percentiles_s((50, 75)) == {"50": pytest.approx(1.0), "75": pytest.approx(2.0)}
+    # Seeded: the same seed draws the same latencies.
+    assert b.sample(np.random.default_rng(7)) == b.sample(np.random.default_rng(7))
+
+
+def test_samples_are_resampled():
+    b = BlockProfile(samples_s=np.array([0.01, 0.05]))
+    x = b.sample(np.random.default_rng(1), size=10000)
+    assert set(np.unique(x)) == {0.01, 0.05}
+    assert (x == 0.05).mean() == pytest.approx(0.5, abs=0.02)
+
+
+@pytest.mark.parametrize("doc,match", [
+    ({"format": "other", "version": 1, "blocks": {}}, "key 'format'"),
+    ({"format": "mata-eval timing profile", "version": 1, "blocks": {}}, "key 'blocks'"),
+    ({"format": "mata-eval timing profile", "version": 1, "blocks": {"tracker": {}}},
+     r"blocks.tracker': expected 'samples_s' and/or 'histogram'"),
+    ({"format": "mata-eval timing profile", "version": 1, "blocks": {"tracker": {"samples_s": [0.1, -1]}}},
+     r"blocks.tracker.samples_s': expected finite non-negative"),
+    ({"format": "mata-eval timing profile", "version": 1,
+      "blocks": {"tracker": {"histogram": {"edges_s": [0, 1], "counts": [1, 2]}}}}, "len\\(edges_s\\)"),
+])
+def test_bad_files_name_file_and_key(tmp_path, doc, match):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ProfileError, match=match) as info:
+        read_profile(path)
+    assert str(path) in str(info.value)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(ProfileError, match="cannot read timing profile"):
+        read_profile(tmp_path / "nope.json")
+
+
+def test_eop_draws_tracker_latency_from_profile(tmp_path):
+    path = write_profile(profile_from_samples({"tracker": [0.05, 0.15]}), tmp_path / "p.json")
+    proto = EOP(EOP.Params(tracker_latency="profile", latency_profile=str(path)))
+    run = run_sequence(make_sequence(200, frame_of=lambda k: k % 256), FrameTracker(), None, None, proto,
+                       np.random.default_rng(3))
+    starts = [e.t for e in run.trace if e.block == "tracker" and e.event == "start"]
+    pubs = [e.t for e in run.trace if e.block == "tracker" and e.event == "publish"]
+    lat = np.round(np.array(pubs) - np.array(starts[:len(pubs)]), 9)
+    assert set(lat) == {0.05, 0.15}
+    # Each call starts at the first frame at or after the previous publish (camera-rate turns).
+    for t_pub, t_next in zip(pubs, starts[1:]):
+        assert t_next == pytest.approx(np.ceil(t_pub * 30 - 1e-6) / 30)
+    # The profile's effective rate (1 / mean = 10 Hz) as the tracker's rate, one-period latency.
+    proto = EOP(EOP.Params(tracker_hz="profile", latency_profile=str(path)))
+    timing = proto.timing(30.0)
+    assert timing.blocks["tracker"].hz == pytest.approx(10.0)
+    assert timing.blocks["tracker"].latency.draw(None, 0.0) == pytest.approx(0.1)
+
+
+def test_profile_without_the_block(tmp_path):
+    path = write_profile(profile_from_samples({"egomotion": [0.01]}), tmp_path / "p.json")
+    proto = EOP(EOP.Params(tracker_latency="profile", latency_profile=str(path)))
+    with pytest.raises(ProfileError, match="no block 'tracker' in the profile \\(it has: egomotion\\)"):
+        proto.timing(30.0)
