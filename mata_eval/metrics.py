@@ -316,15 +316,18 @@ def _bool_mask(mask: np.ndarray | None, n: int, what: str) -> np.ndarray:
 
 def prepare_predictions(pred: np.ndarray, gt: np.ndarray, profile: Profile) -> tuple[np.ndarray, np.ndarray]:
     """Apply the profile's length, frame-0 and zero-size policies; returns (pred, gt)."""
-    pred = _fit_length(_as_boxes(pred, "pred").copy(), len(gt), profile.length_mismatch)
-    if len(pred) < len(gt):  # truncate policy
-        gt = gt[: len(pred)]
+    pred = _as_boxes(pred, "pred").copy()
     if profile.zero_size_prediction == "previous" and len(pred):
-        # sequential on purpose: a run of zero-size boxes carries the last good one forward
-        zero = np.any(pred[:, 2:] == 0.0, axis=1) & ~np.any(np.isnan(gt), axis=1)
+        # before any padding, as pytracking does; sequential on purpose: a run of zero-size
+        # boxes carries the last good one forward
+        m = min(len(pred), len(gt))
+        zero = np.any(pred[:m, 2:] == 0.0, axis=1) & ~np.any(np.isnan(gt[:m]), axis=1)
         for i in np.flatnonzero(zero):
             if i > 0:
                 pred[i] = pred[i - 1]
+    pred = _fit_length(pred, len(gt), profile.length_mismatch)
+    if len(pred) < len(gt):  # truncate policy
+        gt = gt[: len(pred)]
     if profile.frame0 == "ground_truth" and len(pred):
         pred[0] = gt[0]
     return pred, gt
