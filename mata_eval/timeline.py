@@ -127,8 +127,16 @@ def plot_timeline(trace_rows: Iterable[Sequence], path: str | Path, frames: tupl
             if r.block == block and r.event == "skip" and a <= r.frame < b:
                 ax.plot([r.frame], [y[block]], marker="x", color="black", ms=5)
 
-    # Held output: alternate shades, labelled with the capture frame of the held value.
+    # Each detection (not the initialisation) goes down to its consumer when it is published.
     out_block = "estimator" if "estimator" in calls else "tracker"
+    consumer = "estimator" if out_block == "estimator" else "output"
+    for c in calls.get("tracker", [])[1:]:
+        if c.t_publish is not None and a <= c.t_publish * fps <= b:
+            x = c.t_publish * fps
+            ax.annotate("", xy=(x, y[consumer] + 0.32), xytext=(x, y["tracker"] - 0.3),
+                        arrowprops={"arrowstyle": "->", "color": COLORS["tracker"], "lw": 1.0})
+
+    # Held output: alternate shades, labelled with the capture frame of the held value.
     for i, (t0, t1, src) in enumerate(held_segments(rows, n_frames)):
         x0, x1 = max(t0 * fps, a), min(t1 * fps, b)
         if x1 <= x0:
