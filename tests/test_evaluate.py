@@ -1,0 +1,213 @@
+"""Scoring results folders: our run folder (scored frames, failures, block frequencies,
+scores.json round trip) and the foreign pysot / got10k / pytracking layouts, which must give
+the same numbers for the same boxes."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from mata_eval import cli, evaluate, results
+from mata_eval.sequence import Sequence
+
+N = 12
+
+
+def make_sequences() -> list[Sequence]:
+    gt = np.tile([20.0, 20.0, 10.0, 10.0], (N, 1))
+    gt[:, 0] += np.arange(N)  # a target moving right 1 px per frame
+    b = gt.copy()
+    b[5] = np.nan  # out of view
+    ann = np.zeros(N, bool)
+    ann[::3] = True
+    return [
+        Sequence("car1", gt, fps=30.0, attributes=frozenset({"FM", "SV"})),
+        Sequence("car2", b, fps=30.0, attributes=frozenset({"POC"})),
+        Sequence("bike", gt.copy(), fps=30.0, attributes=frozenset({"OV"}), annotated=ann),
+        Sequence("gone", gt.copy(), fps=30.0),
+    ]
+
+
+def predictions(seqs) -> dict[str, np.ndarray]:
+    """car1: lost (shifted 30 px) from frame 8 on; car2: exact; bike: exact."""
+    p = {s.name: np.where(np.isnan(s.groundtruth), 0.0, s.groundtruth) for s in seqs}
+    p["car1"] = p["car1"].copy()
+    p["car1"][8:, 0] += 30
+    p["car2"][5] = [25, 20, 10, 10]
+    return p
+
+
+def frames_csv(scored: np.ndarray, tracker_ms: np.ndarray) -> str:
+    lines = ["frame,scored,confidence,tracker_ms,egomotion_ms,source_frame"]
+    for k in range(len(scored)):
+        t = "nan" if np.isnan(tracker_ms[k]) else f"{tracker_ms[k]:g}"
+        lines.append(f"{k},{int(scored[k])},0.9,{t},2,{k}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    seqs = make_sequences()
+    preds = predictions(seqs)
+    d = tmp_path / "exp" / "eop10"
+    results.write_manifest(d, {"run": "eop10", "experiment": "exp", "config_hash": "abc",
+                               "config": {"dataset": {"name": "toy"}}})
+    tracker = np.full(N, np.nan)
+    tracker[::3] = 40.0  # 10 Hz on a 30 Hz stream, 40 ms per call
+    for s in seqs[:3]:
+        scored = np.ones(N, bool) if s.name != "car2" else (np.arange(N) % 2 == 0)
+        results.write_sequence(d, s.name, preds[s.name], frames_csv(scored, tracker), "block,event,frame,t\n")
+    results.write_failure(d, "gone", "RuntimeError: tracker exploded", "Traceback ...")
+    return d, seqs
+
+
+def test_evaluate_run_scores_and_writes_scores_json(run_dir):
+    d, seqs = run_dir
+    sc = evaluate.evaluate_run(d, seqs)
+    assert sc.name == "eop10" and sc.layout == "mata" and sc.profile == "default"
+    assert set(sc.sequences) == {"car1", "car2", "bike"}
+    assert sc.failures == {"gone": "RuntimeError: tracker exploded"} and sc.missing == ()
+    # car1: IoU 0 from frame 8 of 12 -> NT2F 8/12, SR 8/12
+    assert sc.sequences["car1"].nt2f == pytest.approx(8 / 12)
+    assert sc.sequences["car1"].sr == pytest.approx(8 / 12)
+    # car2: scored every 2nd frame (6 frames); frame 5 is odd, so nothing excluded; exact boxes
+    c2 = sc.sequences["car2"]
+    assert c2.n_scored == 6 and c2.n_excluded == 0 and c2.sr == 1.0
+    # bike: annotated every 3rd frame -> 4 scored frames
+    assert sc.sequences["bike"].n_scored == 4
+    assert sc.summary.overall.n_sequences == 3
+    assert sc.summary.overall.nt2f == pytest.approx((8 / 12 + 1 + 1) / 3)
+    assert sc.summary.groups["occlusion"].n_sequences == 1      # car2 (POC)
+    assert sc.summary.groups["high dynamic"].nt2f == pytest.approx(8 / 12)  # car1 (FM)
+    # tracker: 4 starts per 12 frames at 30 fps -> 10 Hz scheduled, 25 Hz wall clock
+    assert sc.frequencies["tracker"].scheduled_hz == pytest.approx(10.0)
+    assert sc.frequencies["tracker"].wall_hz == pytest.approx(25.0)
+    assert sc.frequencies["egomotion"].scheduled_hz == pytest.approx(30.0)
+
+    data = json.loads((d / "scores.json").read_text())
+    assert data["profile"] == "default" and data["failures"] == {"gone": "RuntimeError: tracker exploded"}
+    assert data["sequences"]["car1"]["n_frames"] == N
+    assert data["profile_policies"]["invalid_success"] == "exclude"
+    back = evaluate.load_scores(d)
+    assert back.summary.overall.msr == pytest.approx(sc.summary.overall.msr)
+    assert back.sequences["car1"].failure_frame == 8
+    assert back.frequencies["tracker"].wall_hz == pytest.approx(25.0)
+    assert not list(d.glob("*.tmp")) and not list(d.glob(".scores.json*"))  # atomic write left nothing
+
+
+def test_excluded_frames_are_counted(run_dir):
+    d, seqs = run_dir
+    (d / "car2.frames.csv").unlink()  # no sidecar: every frame scored, NaN frame 5 excluded
+    sc = evaluate.evaluate_run(d, seqs)
+    assert sc.sequences["car2"].n_excluded == 1 and sc.summary.overall.n_excluded == 1
+    assert evaluate.evaluate_run(d, seqs, profile="pysot").sequences["car2"].n_excluded == 0
+
+
+def test_missing_sequence_is_reported(run_dir):
+    d, seqs = run_dir
+    (d / "bike.txt").unlink()
+    sc = evaluate.evaluate_run(d, seqs)
+    assert sc.missing == ("bike",) and "bike" not in sc.sequences
+
+
+def test_bad_files_get_clear_errors(run_dir):
+    d, seqs = run_dir
+    (d / "car1.frames.csv").write_text("frame,scored\n0,maybe\n")
+    with pytest.raises(ValueError, match=r"car1\.frames\.csv:2: expected 1/0 or true/false"):
+        evaluate.evaluate_run(d, seqs)
+    (d / "car1.frames.csv").unlink()
+    (d / "car1.txt").write_text("1,2,3\n")
+    with pytest.raises(ValueError, match=r"car1\.txt:1: expected 4 numbers"):
+        evaluate.evaluate_run(d, seqs)
+    (d / "car1.txt").write_text("1,2,3,4\n")
+    with pytest.raises(ValueError, match=r"car1\.txt: predictions have 1 rows but the ground truth has 12"):
+        evaluate.evaluate_run(d, seqs)
+    with pytest.raises(FileNotFoundError, match="no scores file"):
+        evaluate.load_scores(d.parent)
+
+
+def write_foreign(tmp_path, preds, layout):
+    d = tmp_path / layout
+    d.mkdir()
+    for name, b in preds.items():
+        if layout == "pysot":
+            (d / f"{name}.txt").write_text("".join(",".join(f"{v:.3f}" for v in r) + "\n" for r in b))
+        elif layout == "pytracking":
+            (d / f"{name}.txt").write_text("".join("\t".join(str(int(v)) for v in r) + "\n" for r in b))
+            (d / f"{name}_time.txt").write_text("".join("0.02\n" for _ in b))
+        else:
+            (d / name).mkdir()
+            (d / name / f"{name}_001.txt").write_text("".join(",".join(f"{v:.3f}" for v in r) + "\n" for r in b))
+            (d / name / f"{name}_time.txt").write_text("0\n" + "".join("0.05\n" for _ in b[1:]))
+    return d
+
+
+@pytest.mark.parametrize("layout", ["pysot", "got10k", "pytracking"])
+def test_foreign_layouts_are_detected_and_give_the_same_scores(tmp_path, layout):
+    seqs = make_sequences()[:3]
+    preds = predictions(seqs)
+    d = write_foreign(tmp_path, preds, layout)
+    assert evaluate.detect_layout(d) == layout
+    sc = evaluate.evaluate_results(d, seqs)
+    assert sc.layout == layout and sc.name == layout
+    assert sc.sequences["car1"].nt2f == pytest.approx(8 / 12)
+    assert sc.sequences["car2"].n_excluded == 1
+    assert sc.summary.overall.sr == pytest.approx((8 / 12 + 1 + 1) / 3)
+    if layout == "got10k":  # frame 0 is the initialisation (time 0): 11 timed frames of 50 ms
+        assert sc.frequencies["tracker"].wall_hz == pytest.approx(20.0)
+    if layout == "pytracking":
+        assert sc.frequencies["tracker"].wall_hz == pytest.approx(50.0)
+    forced = evaluate.evaluate_results(d, seqs, layout=layout, profile="pytracking")
+    assert forced.profile == "pytracking"
+
+
+def test_unknown_layout_and_empty_folder(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no results found"):
+        evaluate.detect_layout(tmp_path)
+    with pytest.raises(ValueError, match="unknown results layout 'vot'"):
+        evaluate.read_results(tmp_path, "vot")
+
+
+def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):
+    seqs = make_sequences()[:3]
+    d = write_foreign(tmp_path, predictions(seqs), "pysot")
+    calls = {}
+
+    def fake_load(name, root, extra=None):
+        calls.update(name=name, root=root, extra=extra)
+        return seqs
+
+    monkeypatch.setattr(evaluate, "load_dataset", fake_load)
+    out_dir = tmp_path / "scores"
+    rc = cli.main(["eval", str(d), "--dataset", "toy", "--root", "/data/toy", "--profile", "pysot-toolkit",
+                   "--output", str(out_dir), "--challenges"])
+    assert rc == 0
+    assert calls == {"name": "toy", "root": "/data/toy", "extra": {}}
+    text = capsys.readouterr().out
+    assert "NT2F" in text and "pysot" in text and "Occlusion" in text
+    assert evaluate.load_scores(out_dir).profile == "pysot-toolkit"
+
+
+def test_eval_cli_reports_unknown_dataset(tmp_path, capsys):
+    d = write_foreign(tmp_path, predictions(make_sequences()), "pysot")
+    assert cli.main(["eval", str(d), "--dataset", "no_such_dataset", "--root", "x"]) == 2
+    assert "unknown dataset 'no_such_dataset'" in capsys.readouterr().err
+
+
+def test_eval_cli_on_real_dtb70_results(shared_data, tmp_path, capsys):
+    """End to end with the dtb70 dataset plugin, when it is installed."""
+    from mata_eval.registry import load_registry
+
+    if "dtb70" not in load_registry().names("dataset"):
+        pytest.skip("dataset plugin 'dtb70' not available yet")
+    with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
+        z.extractall(tmp_path, [n for n in z.namelist() if n.startswith("DTB70/SiamAPN++/")])
+    rc = cli.main(["eval", str(tmp_path / "DTB70" / "SiamAPN++"), "--dataset", "dtb70",
+                   "--root", str(shared_data / "annotations" / "DTB70"), "--profile", "pysot-toolkit",
+                   "--output", str(tmp_path / "out")])
+    assert rc == 0, capsys.readouterr()
+    sc = evaluate.load_scores(tmp_path / "out")
+    assert round(sc.summary.overall.msr, 3) == 0.594 and round(sc.summary.overall.precision20, 3) == 0.789
