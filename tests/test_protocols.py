@@ -65,8 +65,13 @@ def test_dsp_and_vot_rt_parameters():
     assert timing.camera_hz == 7.5 and all(b.hz == 7.5 for b in timing.blocks.values())
     vot = reg.get("protocol", "vot_rt").cls
     assert vot(build_params(vot.Params, {"time_scale": 2})).timing(30.0).blocks["tracker"].latency == WallTimeLatency(2.0)
+    assert vot(build_params(vot.Params, {})).timing(30.0).blocks["estimator"].latency == FixedLatency(0.0)
+    timed = vot(build_params(vot.Params, {"timed_blocks": ["tracker", "egomotion"]})).timing(30.0)
+    assert timed.blocks["egomotion"].latency == WallTimeLatency(1.0)
     with pytest.raises(ValueError, match="time_scale"):
         build_params(vot.Params, {"time_scale": 0})
+    with pytest.raises(ValueError, match="unknown block 'ego'"):
+        build_params(vot.Params, {"timed_blocks": ["ego"]})
 
 
 def test_timeline_calls_and_held_output():
