@@ -92,7 +92,7 @@ def _group_names(runs: Sequence[RunScores]) -> list[str]:
     return names
 
 
-def _challenges(runs: Sequence[RunScores]) -> _Table:
+def _challenges(runs: Sequence[RunScores], fmt: str) -> _Table:
     groups = _group_names(runs)
     n = {g: max((r.summary.groups[g].n_sequences for r in runs if g in r.summary.groups), default=0)
          for g in groups}
@@ -104,7 +104,8 @@ def _challenges(runs: Sequence[RunScores]) -> _Table:
             s = r.summary.groups.get(g)
             row += [_pct(s.sr), _pct(s.nt2f)] if s is not None else ["-", "-"]
         rows.append(row)
-    labels = [(f"{g[:1].upper()}{g[1:]} ({n[g]})", 2) for g in groups]
+    # the number of sequences of each group in the header, except in LaTeX (like the paper)
+    labels = [(f"{g[:1].upper()}{g[1:]}" + ("" if fmt == "latex" else f" ({n[g]})"), 2) for g in groups]
     return _Table([("", 1)] + labels, cols, rows, [1 + 2 * i for i in range(len(groups))])
 
 
@@ -213,7 +214,7 @@ def render_table(runs: Sequence[RunScores], fmt: str = "terminal", table: str = 
     runs = list(runs)
     if fmt == "csv":
         return _csv(runs, table)
-    t = _overall(runs, fmt) if table == "overall" else _challenges(runs)
+    t = _overall(runs, fmt) if table == "overall" else _challenges(runs, fmt)
     return {"terminal": _terminal, "markdown": _markdown, "latex": _latex}[fmt](t)
 
 

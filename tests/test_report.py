@@ -1,0 +1,142 @@
+"""Reports: every table format carries the numbers of the scores (percentages, one decimal;
+CSV at full precision), LaTeX is booktabs, plots are real PNG files, and the report command
+evaluates a run folder only when it can."""
+
+from __future__ import annotations
+
+import csv
+import io
+
+import cv2
+import numpy as np
+import pytest
+
+from mata_eval import cli, evaluate, metrics, report
+from mata_eval.metrics import BlockFrequency
+from mata_eval.sequence import Sequence
+
+
+def run_scores(name: str, lost_at: list[int], attrs: list[set[str]]) -> evaluate.RunScores:
+    seqs, items = {}, []
+    for i, (k, a) in enumerate(zip(lost_at, attrs)):
+        gt = np.tile([10.0, 10.0, 20.0, 20.0], (20, 1))
+        pred = gt.copy()
+        pred[k:, 0] += 100
+        s = metrics.score_sequence(pred, gt)
+        seqs[f"s{i}"] = s
+        items.append((s, a))
+    return evaluate.RunScores(
+        name=name, path="/nowhere", profile="default", layout="mata", sequences=seqs,
+        attributes={f"s{i}": tuple(sorted(a)) for i, a in enumerate(attrs)},
+        summary=metrics.aggregate(items),
+        failures={"bad": "boom"},
+        frequencies={"tracker": BlockFrequency(starts=10, camera_seconds=1.0, total_ms=250.0)},
+    )
+
+
+@pytest.fixture
+def runs():
+    return [run_scores("ostrack_mata", [20, 10], [{"FOC"}, {"FM"}]),
+            run_scores("base & co", [5, 15], [{"POC"}, {"OV", "SOB"}])]
+
+
+def test_terminal_table_has_percentages_with_one_decimal(runs):
+    text = report.render_table(runs, "terminal")
+    lines = text.strip().splitlines()
+    assert lines[0].split()[:7] == ["Run", "Seqs", "SR", "MSR", "PR", "P@20", "NT2F"]
+    row = lines[2].split()
+    # ostrack_mata: NT2F of the two sequences 20/20 and 10/20 -> 75.0 %
+    assert row[0] == "ostrack_mata" and row[1] == "2" and row[6] == "75.0"
+    assert "10.0 (40.0)" in lines[2]  # tracker 10 Hz scheduled, 40 Hz wall clock
+    assert lines[2].split()[-1] == "1"  # one failed sequence
+
+
+def test_markdown_table(runs):
+    lines = report.render_table(runs, "markdown").strip().splitlines()
+    assert lines[0].startswith("| Run | Seqs | SR |") and set(lines[1]) <= set("|:-")
+    cells = [c.strip() for c in lines[3].strip("|").split("|")]
+    assert cells[0] == "base & co" and cells[6] == "50.0"  # NT2F (5 + 15) / 40
+
+
+def test_csv_keeps_full_precision(runs):
+    rows = list(csv.DictReader(io.StringIO(report.render_table(runs, "csv"))))
+    assert [r["run"] for r in rows] == ["ostrack_mata", "base & co"]
+    assert float(rows[0]["nt2f"]) == pytest.approx(0.75)
+    assert float(rows[0]["msr"]) == pytest.approx(runs[0].summary.overall.msr, abs=1e-6)
+    assert float(rows[0]["tracker_wall_hz"]) == pytest.approx(40.0)
+    assert rows[0]["failed"] == "1"
+    groups = list(csv.DictReader(io.StringIO(report.render_table(runs, "csv", table="challenges"))))
+    occ = [g for g in groups if g["run"] == "ostrack_mata" and g["group"] == "occlusion"][0]
+    assert float(occ["nt2f"]) == 1.0 and occ["sequences"] == "1"
+
+
+def test_latex_is_booktabs_and_escaped(runs):
+    tex = report.render_table(runs, "latex")
+    lines = tex.strip().splitlines()
+    assert lines[0].startswith(r"\begin{tabular}{l|c|ccccc|") and lines[1] == r"\toprule"
+    assert lines[3] == r"\midrule" and lines[-2] == r"\bottomrule" and lines[-1] == r"\end{tabular}"
+    assert r"ostrack\_mata & 2 &" in tex and r"base \& co" in tex
+    assert "75.0" in tex and r"\\" in lines[4]
+    n_cols = len(lines[2].split(" & "))
+    assert all(len(line.split(" & ")) == n_cols for line in lines[4:6])
+
+
+def test_challenge_table_like_paper_table_2(runs):
+    tex = report.render_table(runs, "latex", table="challenges")
+    assert r"\multicolumn{2}{c|}{Occlusion}" in tex and r"\multicolumn{2}{c}{Out of view}" in tex
+    assert "Run & SR & NT2F & SR & NT2F" in tex
+    # ostrack_mata: occlusion = s0 (FOC, never lost): SR 100.0, NT2F 100.0; high dynamic = s1 (lost at 10)
+    row = [r for r in tex.splitlines() if r.startswith("ostrack")][0].rstrip(r" \\").split(" & ")
+    assert row[1:5] == ["100.0", "100.0", "-", "-"]
+    assert row[5:7] == ["50.0", "50.0"]
+    term = report.render_table(runs, "terminal", table="challenges")
+    assert "Occlusion (1) SR" in term and "Distractor (1) NT2F" in term
+
+
+def test_bad_format_is_rejected(runs):
+    with pytest.raises(ValueError, match="unknown table format 'html'"):
+        report.render_table(runs, "html")
+
+
+def test_nt2f_survival_area_is_mean_nt2f():
+    vals = [0.1, 0.5, 1.0, 0.75]
+    grid = np.linspace(0, 1, 100001)
+    surv = report.nt2f_survival(vals, grid)
+    area = float(np.sum((surv[1:] + surv[:-1]) / 2 * np.diff(grid)))  # trapezoid rule
+    assert area == pytest.approx(np.mean(vals), abs=1e-4)
+    assert surv[0] == 1.0 and surv[-1] == 0.25  # only the never-failed sequence at t = 1
+
+
+def test_plots_are_png_files(runs, tmp_path):
+    paths = report.plot_curves(runs, tmp_path / "plots")
+    assert {p.name for p in paths} == {"success.png", "precision.png", "norm_precision.png", "nt2f.png"}
+    for p in paths:
+        img = cv2.imread(str(p))
+        assert img is not None and img.shape[0] > 100 and img.std() > 0
+
+
+def toy_run_folder(tmp_path):
+    from mata_eval import results
+
+    d = tmp_path / "run"
+    gt = np.tile([10.0, 10.0, 20.0, 20.0], (6, 1))
+    results.write_sequence(d, "a", gt, "frame,scored\n" + "".join(f"{k},1\n" for k in range(6)), "")
+    return d, [Sequence("a", gt)]
+
+
+def test_report_cli_writes_every_format_and_plots(tmp_path, capsys):
+    d, seqs = toy_run_folder(tmp_path)
+    evaluate.evaluate_run(d, seqs)
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(d), str(d / "scores.json"), "--out", str(out), "--format", "all",
+                     "--table", "both"]) == 0
+    for name in ("overall.md", "overall.csv", "overall.tex", "challenges.tex", "success.png", "nt2f.png"):
+        assert (out / name).is_file(), name
+    assert "95.2" in capsys.readouterr().out  # perfect tracker: MSR 20/21 in the terminal table
+
+
+def test_report_cli_explains_when_it_cannot_evaluate(tmp_path, capsys):
+    d, _ = toy_run_folder(tmp_path)
+    assert cli.main(["report", str(d)]) == 2
+    err = capsys.readouterr().err
+    assert "no scores.json and no manifest.json" in err and "mata-eval eval" in err
