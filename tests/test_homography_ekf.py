@@ -123,9 +123,12 @@ def test_every_step_matches_filterpy(model):
 
         if motions:
             R = em.floored(C, est._h_floor)
+            ref_x0, ref_P0 = ref.x.copy(), ref.P.copy()
             ref.update(H.reshape(9), lambda x: Hh, lambda x: Hh @ x, R=R)
-            mine_x, mine_P = em.joseph_update(mine_x, mine_P, H.reshape(9), Hh, R)
+            mine_x, mine_P = em.joseph_update_block(mine_x, mine_P, H.reshape(9), em.HOM, R)
+            gx, gP = em.joseph_update(ref_x0, ref_P0, H.reshape(9), Hh, R)
             _close(mine_x, mine_P, ref.x, ref.P)
+            _close(gx, gP, ref.x, ref.P)
         fx, F = em.transition(ref.x, DT, est.n_deriv)
         ref.F, ref.Q, ref.fx = F, q, fx
         ref.predict()
@@ -133,9 +136,12 @@ def test_every_step_matches_filterpy(model):
         _close(mine_x, mine_P, ref.x, ref.P)
         if dets:
             z = np.array(dets[0].value.box.corners())
+            ref_x0, ref_P0 = ref.x.copy(), ref.P.copy()
             ref.update(z, lambda x: Hb, lambda x: Hb @ x, R=est._R_box)
-            mine_x, mine_P = em.joseph_update(mine_x, mine_P, z, Hb, est._R_box)
+            mine_x, mine_P = em.joseph_update_block(mine_x, mine_P, z, em.CORNERS, est._R_box)
+            gx, gP = em.joseph_update(ref_x0, ref_P0, z, Hb, est._R_box)
             _close(mine_x, mine_P, ref.x, ref.P)
+            _close(gx, gP, ref.x, ref.P)
         _close(est.state.x, est.state.P, ref.x, ref.P)
 
 

@@ -37,54 +37,63 @@ def deriv_slice(i: int) -> slice:
 
 def project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     """g(p): the point ``p = (x, y)`` mapped through ``H`` (dehomogenised)."""
-    w = H[2, 0] * p[0] + H[2, 1] * p[1] + H[2, 2]
-    return np.array([(H[0, 0] * p[0] + H[0, 1] * p[1] + H[0, 2]) / w,
-                     (H[1, 0] * p[0] + H[1, 1] * p[1] + H[1, 2]) / w])
-
-
-def _uvw(H: np.ndarray, p: np.ndarray) -> tuple[float, float, float]:
-    w = H[2, 0] * p[0] + H[2, 1] * p[1] + H[2, 2]
-    u = (H[0, 0] * p[0] + H[0, 1] * p[1] + H[0, 2]) / w
-    v = (H[1, 0] * p[0] + H[1, 1] * p[1] + H[1, 2]) / w
-    return u, v, w
+    u, v, _ = _uvw(H.reshape(9).tolist(), float(p[0]), float(p[1]))
+    return np.array([u, v])
 
 
 def jac_point(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     """J_g(p) = dg/dp (2x2), MODELS.md section 4.2 (J_p)."""
-    u, v, w = _uvw(H, p)
-    return np.array([[H[0, 0] - u * H[2, 0], H[0, 1] - u * H[2, 1]],
-                     [H[1, 0] - v * H[2, 0], H[1, 1] - v * H[2, 1]]]) / w
+    h = H.reshape(9).tolist()
+    return np.array(_jp(h, *_uvw(h, float(p[0]), float(p[1]))))
 
 
 def jac_hom(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     """dg/dh (2x9) over row-major vec(H), MODELS.md section 4.2 (J_i)."""
-    u, v, w = _uvw(H, p)
-    pt = np.array([p[0], p[1], 1.0])
-    out = np.zeros((2, 9))
-    out[0, 0:3] = pt
-    out[1, 3:6] = pt
-    out[0, 6:9] = -u * pt
-    out[1, 6:9] = -v * pt
-    return out / w
+    x, y = float(p[0]), float(p[1])
+    return np.array(_jh(x, y, *_uvw(H.reshape(9).tolist(), x, y)))
 
 
 def jac_point_times(H: np.ndarray, p: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """m = J_g(p) e (a displacement ``e`` mapped to the new frame) and its derivatives
     dm/dp (2x2) and dm/dh (2x9); m is linear in e with dm/de = J_g(p)."""
-    u, v, w = _uvw(H, p)
-    J = np.array([[H[0, 0] - u * H[2, 0], H[0, 1] - u * H[2, 1]],
-                  [H[1, 0] - v * H[2, 0], H[1, 1] - v * H[2, 1]]]) / w
-    m = J @ e
-    s = H[2, 0] * e[0] + H[2, 1] * e[1]
-    dm_dp = -(s / w) * J - np.outer(m, H[2, :2]) / w
-    pt = np.array([p[0], p[1], 1.0])
-    et = np.array([e[0], e[1], 0.0])
-    dm_dh = np.zeros((2, 9))
-    dm_dh[0, 0:3] = (et - (s / w) * pt) / w
-    dm_dh[1, 3:6] = dm_dh[0, 0:3]
-    dm_dh[0, 6:9] = ((u * s / w - m[0]) * pt - u * et) / w
-    dm_dh[1, 6:9] = ((v * s / w - m[1]) * pt - v * et) / w
-    return m, dm_dp, dm_dh
+    h = H.reshape(9).tolist()
+    x, y = float(p[0]), float(p[1])
+    m, mp, mh = _jpt(h, x, y, float(e[0]), float(e[1]), *_uvw(h, x, y))
+    return np.array(m), np.array(mp), np.array(mh)
+
+
+# Scalar kernels on a row-major list ``h`` of 9 floats (plain Python floats: for 2-vectors they
+# are several times faster than numpy element access).
+
+def _uvw(h: list, x: float, y: float) -> tuple[float, float, float]:
+    w = h[6] * x + h[7] * y + h[8]
+    return (h[0] * x + h[1] * y + h[2]) / w, (h[3] * x + h[4] * y + h[5]) / w, w
+
+
+def _jp(h: list, u: float, v: float, w: float) -> list:
+    return [[(h[0] - u * h[6]) / w, (h[1] - u * h[7]) / w],
+            [(h[3] - v * h[6]) / w, (h[4] - v * h[7]) / w]]
+
+
+def _jh(x: float, y: float, u: float, v: float, w: float) -> list:
+    a, b, c = x / w, y / w, 1.0 / w
+    return [[a, b, c, 0.0, 0.0, 0.0, -u * a, -u * b, -u * c],
+            [0.0, 0.0, 0.0, a, b, c, -v * a, -v * b, -v * c]]
+
+
+def _jpt(h: list, x: float, y: float, e0: float, e1: float, u: float, v: float, w: float):
+    (j00, j01), (j10, j11) = _jp(h, u, v, w)
+    m0, m1 = j00 * e0 + j01 * e1, j10 * e0 + j11 * e1
+    s = (h[6] * e0 + h[7] * e1) / w
+    g0, g1 = h[6] / w, h[7] / w
+    mp = [[-s * j00 - m0 * g0, -s * j01 - m0 * g1],
+          [-s * j10 - m1 * g0, -s * j11 - m1 * g1]]
+    # dm/dh: rows of H multiply (e - s p~)/w; the last row adds ((u s - m) p~ - u e)/w
+    r0, r1, r2 = (e0 - s * x) / w, (e1 - s * y) / w, -s / w
+    k0, k1 = (u * s - m0) / w, (v * s - m1) / w
+    mh = [[r0, r1, r2, 0.0, 0.0, 0.0, k0 * x - u * e0 / w, k0 * y - u * e1 / w, k0],
+          [0.0, 0.0, 0.0, r0, r1, r2, k1 * x - v * e0 / w, k1 * y - v * e1 / w, k1]]
+    return [m0, m1], mp, mh
 
 
 # --- the transition f (eq. ekf_velocity_1, generalised to higher derivatives) --------------------
@@ -108,40 +117,46 @@ def transition(x: np.ndarray, dt: float, n_deriv: int) -> tuple[np.ndarray, np.n
     v -> J_g(c) v, with J_g evaluated at the box centre c = (tl + br) / 2. Higher models add
     the Taylor terms (a dt^2/2, j dt^3/6) and map every derivative through J_g(c)."""
     n = state_dim(n_deriv)
-    H = x[HOM].reshape(3, 3)
-    tl, br = x[TL], x[BR]
-    c = 0.5 * (tl + br)
-    D = x[N_BASE:].reshape(n_deriv, 2)
+    xs = x.tolist()
+    h = xs[4:13]
+    x1, y1, x2, y2 = xs[0:4]
+    cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
     wdisp, T = taylor(dt, n_deriv)
-    e = wdisp @ D                      # displacement of the centre over dt (old frame)
-    nd = T @ D                         # derivatives after dt (old frame), one row each
+    uvw_c = _uvw(h, cx, cy)
+    Jc = np.array(_jp(h, *uvw_c))
+    # m(e) = J_g(c) e is linear in e: map each derivative once, then combine with the weights
+    M = np.empty((n_deriv, 2, 12))      # per derivative: [m | dm/dp | dm/dh] rows
+    for i in range(n_deriv):
+        m, mp, mh = _jpt(h, cx, cy, xs[N_BASE + 2 * i], xs[N_BASE + 2 * i + 1], *uvw_c)
+        M[i, :, 0] = m
+        M[i, :, 1:3] = mp
+        M[i, :, 3:] = mh
+    M = M.reshape(n_deriv, 24)
+    disp = (wdisp @ M).reshape(2, 12)       # centre displacement over dt, in the new frame
+    nd = (T @ M).reshape(n_deriv, 2, 12)    # derivative j after dt, in the new frame
 
-    m, m_p, m_h = jac_point_times(H, c, e)
-    Jc = jac_point(H, c)
+    uvw_tl, uvw_br = _uvw(h, x1, y1), _uvw(h, x2, y2)
     fx = np.empty(n)
-    fx[TL] = project(H, tl) + m
-    fx[BR] = project(H, br) + m
+    d0, d1 = disp[:, 0].tolist()
+    fx[0:4] = (uvw_tl[0] + d0, uvw_tl[1] + d1, uvw_br[0] + d0, uvw_br[1] + d1)
     fx[HOM] = x[HOM]
+    fx[N_BASE:] = nd[:, :, 0].reshape(-1)
 
     F = np.zeros((n, n))
-    half = 0.5 * m_p
-    F[TL, TL] = jac_point(H, tl) + half
+    half = 0.5 * disp[:, 1:3]
+    F[TL, TL] = np.array(_jp(h, *uvw_tl)) + half
     F[TL, BR] = half
     F[BR, TL] = half
-    F[BR, BR] = jac_point(H, br) + half
-    F[TL, HOM] = jac_hom(H, tl) + m_h
-    F[BR, HOM] = jac_hom(H, br) + m_h
+    F[BR, BR] = np.array(_jp(h, *uvw_br)) + half
+    F[TL, HOM] = np.array(_jh(x1, y1, *uvw_tl)) + disp[:, 3:]
+    F[BR, HOM] = np.array(_jh(x2, y2, *uvw_br)) + disp[:, 3:]
     F[HOM, HOM] = np.eye(9)
     for i in range(n_deriv):
-        F[TL, deriv_slice(i)] = wdisp[i] * Jc
-        F[BR, deriv_slice(i)] = wdisp[i] * Jc
+        F[TL, deriv_slice(i)] = F[BR, deriv_slice(i)] = wdisp[i] * Jc
     for j in range(n_deriv):
-        mj, mj_p, mj_h = jac_point_times(H, c, nd[j])
         sj = deriv_slice(j)
-        fx[sj] = mj
-        F[sj, TL] = 0.5 * mj_p
-        F[sj, BR] = 0.5 * mj_p
-        F[sj, HOM] = mj_h
+        F[sj, TL] = F[sj, BR] = 0.5 * nd[j, :, 1:3]
+        F[sj, HOM] = nd[j, :, 3:]
         for i in range(j, n_deriv):
             F[sj, deriv_slice(i)] = T[j, i] * Jc
     return fx, F
@@ -164,6 +179,20 @@ def joseph_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, Hm: np.ndarray,
     K = np.linalg.solve(S, PHt.T).T     # S is symmetric: (S^-1 H P)^T = P H^T S^-1
     x = x + K @ (z - Hm @ x)
     A = np.eye(len(x)) - K @ Hm
+    P = A @ P @ A.T + K @ R @ K.T
+    return x, 0.5 * (P + P.T)
+
+
+def joseph_update_block(x: np.ndarray, P: np.ndarray, z: np.ndarray, sl: slice,
+                        R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`joseph_update` for a measurement of the state entries ``sl`` (H = selector(sl)),
+    the same arithmetic without the products by a 0/1 matrix."""
+    PHt = P[:, sl]
+    S = PHt[sl] + R
+    K = np.linalg.solve(S, PHt.T).T
+    x = x + K @ (z - x[sl])
+    A = np.eye(len(x))
+    A[:, sl] -= K
     P = A @ P @ A.T + K @ R @ K.T
     return x, 0.5 * (P + P.T)
 

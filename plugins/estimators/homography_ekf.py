@@ -105,15 +105,12 @@ class HomographyEKF:
         if p.r_box <= 0:
             raise ValueError(f"homography_ekf: `r_box` must be positive, got {p.r_box}")
         self.n_deriv = N_DERIV[p.model]
-        n = em.state_dim(self.n_deriv)
         h_q = np.asarray(p.q_h, float) if p.camera else np.zeros(9)
         h_p0 = np.asarray(p.p0_h, float) if p.camera else np.zeros(9)
         dq = [p.q_v, p.q_a, p.q_j][: self.n_deriv]
         dp = [p.p0_v, p.p0_a, p.p0_j][: self.n_deriv]
         self._q = np.concatenate([np.full(4, p.q_box), h_q, np.repeat(dq, 2)])
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
-        self._H_box = em.selector(n, em.CORNERS)
-        self._H_hom = em.selector(n, em.HOM)
         self._R_box = np.eye(4) * p.r_box
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
@@ -233,7 +230,7 @@ class HomographyEKF:
             centre = 0.5 * (x[em.TL] + x[em.BR])
             if not em.transferred_sigma(H, C, centre) <= self.params.tau_sigma:
                 return x, P
-        return em.joseph_update(x, P, H.reshape(9), self._H_hom, em.floored(C, self._h_floor))
+        return em.joseph_update_block(x, P, H.reshape(9), em.HOM, em.floored(C, self._h_floor))
 
     def _update_detection(self, x: np.ndarray, P: np.ndarray, ewma: float | None,
                           out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, float | None]:
@@ -243,7 +240,7 @@ class HomographyEKF:
         ewma, accept = confidence_gate(ewma, float(out.confidence), p.alpha_ewma, p.tau_ewma, p.tau_diff)
         if not out.box.is_valid or (p.gating and not accept):
             return x, P, ewma
-        x, P = em.joseph_update(x, P, np.asarray(out.box.corners(), float), self._H_box, self._R_box)
+        x, P = em.joseph_update_block(x, P, np.asarray(out.box.corners(), float), em.CORNERS, self._R_box)
         return x, P, ewma
 
     @staticmethod
