@@ -318,3 +318,31 @@ def test_params_from_yaml_and_errors():
     est.initialize(Box(0, 0, 10, 10), 1.0)
     with pytest.raises(ValueError, match="before the previous tick"):
         est.step(0.5)
+
+
+# --- the ablation experiment file ------------------------------------------------------------------
+
+def test_ablation_experiment_expands_to_the_seven_configurations():
+    import importlib.util
+    from pathlib import Path
+
+    from mata_eval.config import load_experiment
+    from mata_eval.registry import load_registry
+
+    reg = load_registry()
+    needed = {"dataset": "synthetic", "tracker": "kcf", "egomotion": "grid_lk", "protocol": "eop"}
+    missing = [f"{k} {n}" for k, n in needed.items() if n not in reg.names(k)]
+    if importlib.util.find_spec("mata_eval.occlusion") is None:
+        missing.append("mata_eval.occlusion")
+    if missing:
+        pytest.skip(f"plugins not installed yet: {', '.join(missing)}")
+    exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments" / "ablation.yaml")
+    runs = {r.name: r for r in exp.runs}
+    assert list(runs) == ["1-baseline", "2-mata", "3-score", "4-no-camera", "5-ca", "6-cj", "7-no-threshold"]
+    for name in ("1-baseline", "3-score"):
+        assert runs[name].egomotion is None and runs[name].estimator is None
+    est = {n: r.estimator.params for n, r in runs.items() if r.estimator is not None}
+    assert est["2-mata"] == HomographyEKF.Params()
+    assert runs["4-no-camera"].egomotion is None and est["4-no-camera"].camera is False
+    assert (est["5-ca"].model, est["6-cj"].model, est["7-no-threshold"].gating) == ("ca", "cj", False)
+    assert all(r.protocol.name == "eop" and r.tracker.name == "kcf" for r in runs.values())
