@@ -289,7 +289,11 @@ def run_sequence(
         return float(links.get((src, dst), 0.0))
 
     delivered = turn_frames(n, timing.camera_hz, fps)
-    turns = {b: turn_frames(n, timing.blocks[b].hz, fps, delivered) for b in active}
+    turns = {b: turn_frames(n, timing.blocks[b].hz, fps, delivered).tolist() for b in active}
+    is_delivered = delivered.tolist()
+    # Link delays, looked up once (the loop below runs once per frame).
+    d_est_trk, d_ego_est, d_trk_est = link("estimator", "tracker"), link("egomotion", "estimator"), link("tracker", "estimator")
+    d_trk_out = link("tracker", "output")
     boards = {b: _Board() for b in BLOCKS}
     busy_until = {b: -math.inf for b in BLOCKS}
     calls = {b: 0 for b in BLOCKS}
@@ -303,13 +307,15 @@ def run_sequence(
     boards["tracker"].post(TrackerOutput(init_box, math.nan), 0.0, 0, 0.0)
 
     out_block = "estimator" if estimator is not None else "tracker"
+    d_out = link(out_block, "output")
+    init_row = init_box.as_array()
     boxes = np.empty((n, 4))
     confidence = np.full(n, np.nan)
     source = np.zeros(n, dtype=int)
 
     for k in range(n):
         tk = k / fps
-        if delivered[k]:
+        if is_delivered[k]:
             trace.append(TraceEvent("camera", "publish", k, tk))
         else:
             trace.append(TraceEvent("camera", "skip", k, tk))
@@ -347,7 +353,7 @@ def run_sequence(
                 else:
                     prior = None
                     if feedback and estimator is not None:
-                        i = boards["estimator"].visible(tk, link("estimator", "tracker"))
+                        i = boards["estimator"].visible(tk, d_est_trk)
                         if i:
                             est_box = boards["estimator"].values[i - 1].box
                             prior = (est_box.cx, est_box.cy)
@@ -361,8 +367,8 @@ def run_sequence(
                     value = _call(b, k, tk, obj.initialize, init_box, tk)
                     wall = clock() - t0
                 else:
-                    motions = _take(boards["egomotion"], consumed, "egomotion", tk, link("egomotion", "estimator"))
-                    dets = _take(boards["tracker"], consumed, "tracker", tk, link("tracker", "estimator"))
+                    motions = _take(boards["egomotion"], consumed, "egomotion", tk, d_ego_est)
+                    dets = _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
                     t0 = clock()
                     value = _call(b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
@@ -385,14 +391,15 @@ def run_sequence(
 
         # Zero-order hold: the newest output of the output block visible at t_k.
         ob = boards[out_block]
-        i = ob.visible(tk, link(out_block, "output"))
+        i = ob.visible(tk, d_out)
         if i == 0:  # nothing reached the output yet: the initial box
-            boxes[k] = init_box.as_array()
+            boxes[k] = init_row
             source[k] = 0
         else:
-            boxes[k] = ob.values[i - 1].box.as_array()
+            bx = ob.values[i - 1].box
+            boxes[k] = (bx.x, bx.y, bx.w, bx.h)
             source[k] = ob.k_capture[i - 1]
-        j = boards["tracker"].visible(tk, link("tracker", "output"))
+        j = boards["tracker"].visible(tk, d_trk_out)
         if j > 1:
             confidence[k] = float(boards["tracker"].values[j - 1].confidence)
 
@@ -425,12 +432,19 @@ def _call(block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
 def _check_output(value: Any, k: int, t: float) -> None:
     if not isinstance(value, TrackerOutput):
         raise BlockError("tracker", k, t, f"expected a TrackerOutput, got {type(value).__name__}")
-    if not np.all(np.isfinite(value.box.as_array())):
+    if not _finite(value.box):
         raise BlockError("tracker", k, t, f"returned a non-finite box {value.box}")
 
 
 def _check_estimate(value: Any, k: int, t: float) -> None:
     if not isinstance(value, Estimate):
         raise BlockError("estimator", k, t, f"expected an Estimate, got {type(value).__name__}")
-    if not np.all(np.isfinite(value.box.as_array())):
+    if not _finite(value.box):
         raise BlockError("estimator", k, t, f"returned a non-finite box {value.box}")
+
+
+def _finite(box: Box) -> bool:
+    try:
+        return all(math.isfinite(v) for v in (box.x, box.y, box.w, box.h))
+    except TypeError:
+        return False
