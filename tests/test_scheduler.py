@@ -321,3 +321,21 @@ def test_csv_rows():
     assert run.trace_csv().splitlines()[0] == "block,event,frame,t"
     assert ("tracker", "start", 3, pytest.approx(0.1)) == run.trace_rows()[
         [i for i, r in enumerate(run.trace_rows()) if r[:3] == ("tracker", "start", 3)][0]]
+
+
+def test_vot_realtime_with_the_real_clock():
+    import time
+
+    class Sleeper(FrameTracker):
+        def track(self, image, prior=None):
+            time.sleep(0.045)  # at least 1.35 frames at 30 fps, whatever the machine
+            return super().track(image, prior)
+
+    run = run_sequence(make_sequence(12), Sleeper(), None, None, VotRealTime(), np.random.default_rng(0))
+    starts = [e for e in run.trace if e.block == "tracker" and e.event == "start"]
+    pubs = [e for e in run.trace if e.block == "tracker" and e.event == "publish"]
+    assert starts[0].frame == 0 and len(starts) >= 3
+    for s, p, nxt in zip(starts[1:], pubs[1:], starts[2:]):
+        assert p.t - s.t >= 0.045  # latency = measured wall time
+        assert nxt.frame == p.frame >= s.frame + 2  # restarts at the first frame after publishing
+    assert np.all(run.wall_ms["tracker"][[s.frame for s in starts[1:]]] >= 45.0)
