@@ -41,7 +41,7 @@ from .types import Box, Estimate, Motion, Stamped, TrackerOutput
 #: Blocks in intra-frame (data-flow) order. ``camera`` only delivers frames.
 BLOCKS = ("egomotion", "tracker", "estimator")
 LANES = ("camera",) + BLOCKS
-EVENTS = ("publish", "skip", "start")  # order of events at the same instant in a trace
+EVENTS = ("start", "publish", "skip")
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
 
 
@@ -405,14 +405,15 @@ def run_sequence(
 
     duration = n / fps
     rates = {b: calls[b] / duration for b in active}
-    order = {name: i for i, name in enumerate(LANES)}
-    ev_order = {e: i for i, e in enumerate(EVENTS)}
-    trace.sort(key=lambda e: (e.frame, e.t, order.get(e.block, 99), ev_order[e.event]))
+    # Stable sort: events at the same instant keep the order in which they happened (a publish
+    # due at t_k before the starts of frame k; a zero-latency publish right after its start).
+    trace.sort(key=lambda e: (e.frame, round(e.t / EPS)))  # times equal within EPS tie
     return SequenceRun(fps, boxes, delivered.copy(), confidence, source, wall_ms, tuple(trace), rates)
 
 
 def _first_frame_at(t: float, fps: float) -> int:
-    return int(math.ceil(t * fps - 1e-6))
+    """The first frame at which something published at ``t`` is visible (same tolerance)."""
+    return int(math.ceil((t - EPS) * fps))
 
 
 def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> list[Stamped]:

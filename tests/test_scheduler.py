@@ -339,3 +339,16 @@ def test_vot_realtime_with_the_real_clock():
         assert p.t - s.t >= 0.045  # latency = measured wall time
         assert nxt.frame == p.frame >= s.frame + 2  # restarts at the first frame after publishing
     assert np.all(run.wall_ms["tracker"][[s.frame for s in starts[1:]]] >= 45.0)
+
+
+@pytest.mark.parametrize("proto", [LTP(), EOP(EOP.Params(tracker_hz=10.0)), EOP(EOP.Params(tracker_hz=7.0)),
+                                   EOP(EOP.Params(tracker_latency=0.05, jitter_s=0.03))])
+def test_trace_alternates_start_and_publish_per_block(proto):
+    run = run_sequence(make_sequence(60), FrameTracker(), FrameEgoMotion(), LogEstimator(), proto,
+                       np.random.default_rng(5))
+    for block in ("egomotion", "tracker", "estimator"):
+        seq = [e.event for e in run.trace if e.block == block and e.event != "skip"]
+        assert seq[0::2] == ["start"] * len(seq[0::2])
+        assert seq[1::2] == ["publish"] * len(seq[1::2])
+    frames = [e.frame for e in run.trace]
+    assert frames == sorted(frames)
