@@ -16,7 +16,10 @@ File format (JSON, or YAML when the file name ends in ``.yaml`` / ``.yml``)::
         rate_hz: 12.4                      # effective rate when run back to back = 1 / mean
       egomotion: {...}
 
-A block needs ``samples_s`` or ``histogram`` (or both; draws then use the samples).
+Block names are the scheduler's (``tracker``, ``egomotion``, ``estimator``); other names are
+kept but unused. A block needs ``samples_s`` or ``histogram`` (or both; draws then use the
+samples). Writers: build the profile with :func:`profile_from_samples` and save it with
+:func:`write_profile`.
 """
 
 from __future__ import annotations
