@@ -94,6 +94,7 @@ def test_eop_draws_tracker_latency_from_profile(tmp_path):
 
 def test_profile_without_the_block(tmp_path):
     path = write_profile(profile_from_samples({"egomotion": [0.01]}), tmp_path / "p.json")
-    proto = EOP(EOP.Params(tracker_latency="profile", latency_profile=str(path)))
     with pytest.raises(ProfileError, match="no block 'tracker' in the profile \\(it has: egomotion\\)"):
-        proto.timing(30.0)
+        EOP.Params(tracker_latency="profile", latency_profile=str(path))
+    with pytest.raises(ProfileError, match="cannot read timing profile"):
+        EOP.Params(tracker_latency="profile", latency_profile=str(tmp_path / "missing.json"))

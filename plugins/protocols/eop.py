@@ -73,6 +73,11 @@ class EOP:
             if uses_profile and not self.latency_profile:
                 raise ValueError("eop: latency_profile: a rate or latency is 'profile', so a timing profile "
                                  "file must be given")
+            if self.latency_profile:  # fail when the experiment is loaded, not in every sequence
+                profile = read_profile(self.latency_profile)
+                for b in BLOCKS:
+                    if "profile" in (getattr(self, f"{b}_hz"), getattr(self, f"{b}_latency")):
+                        profile.block(b, f"eop: latency_profile {self.latency_profile}")
             for key, value in self.link_delay_s.items():
                 parse_link(key)
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
