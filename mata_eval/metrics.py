@@ -69,6 +69,10 @@ class Profile:
     invalid_precision: InvalidAction = "exclude"
     norm_precision_valid: Validity = "wh"
     invalid_norm_precision: InvalidAction = "exclude"
+    #: ``continuous``: :func:`iou`, clipped to [0, 1]; ``pixel_inclusive``: pytracking's
+    #: ``br = x + w - 1``, ``sz = br - tl + 1`` without clipping, where float rounding can put
+    #: the IoU of identical boxes a hair above 1 (then it passes the last threshold).
+    iou_formula: Literal["continuous", "pixel_inclusive"] = "continuous"
     #: ``continuous``: centre ``x + w/2``; ``legacy``: ``x + (w - 1)/2`` (MATLAB heritage).
     #: The two only differ in the ``center`` validity mask, distances are the same.
     center: Literal["continuous", "legacy"] = "continuous"
@@ -128,6 +132,7 @@ PROFILES: dict[str, Profile] = {
             precision_valid="xywh", invalid_precision="hit",
             norm_precision_valid="xywh", invalid_norm_precision="hit", center="legacy",
             frame0="ground_truth", zero_size_prediction="previous", length_mismatch="pad",
+            iou_formula="pixel_inclusive",
         ),
         Profile(
             "mmtracking",
@@ -183,6 +188,21 @@ def iou(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
         out = inter / union
     out[~np.isfinite(out) | ~(union > 0)] = 0.0
     return np.clip(out, 0.0, 1.0)
+
+
+def iou_pixel_inclusive(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """pytracking's IoU: corners ``x + w - 1``, sizes ``br - tl + 1``, no clipping. Equal to
+    :func:`iou` up to float rounding (which it keeps, as pytracking does); non-finite -> 0."""
+    p = _as_boxes(pred, "pred")
+    g = _as_boxes(gt, "gt")
+    tl = np.maximum(p[:, :2], g[:, :2])
+    br = np.minimum(p[:, :2] + p[:, 2:] - 1.0, g[:, :2] + g[:, 2:] - 1.0)
+    inter = np.prod(np.maximum(br - tl + 1.0, 0.0), axis=1)
+    union = np.prod(p[:, 2:], axis=1) + np.prod(g[:, 2:], axis=1) - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = inter / union
+    out[~np.isfinite(out)] = 0.0
+    return out
 
 
 def centers(boxes: np.ndarray, convention: Literal["continuous", "legacy"] = "continuous") -> np.ndarray:
@@ -355,7 +375,7 @@ def score_sequence(
     frame_index = np.flatnonzero(keep)
     p, g = pred[keep], g[keep]
 
-    overlaps = iou(p, g)
+    overlaps = iou(p, g) if prof.iou_formula == "continuous" else iou_pixel_inclusive(p, g)
     c_gt, c_pred = centers(g, prof.center), centers(p, prof.center)
     with np.errstate(invalid="ignore", divide="ignore"):
         dist = np.linalg.norm(c_pred - c_gt, axis=1)
