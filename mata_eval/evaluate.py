@@ -243,13 +243,12 @@ def evaluate_results(
     failures = results.read_failures(d) if layout == "mata" else {}
     per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups)
     manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
-    known = {s.name for s in sequences}
+    dataset = (manifest.get("config") or {}).get("dataset")
     meta = {
         "experiment": manifest.get("experiment"),
         "config_hash": manifest.get("config_hash"),
-        "dataset": (manifest.get("config") or {}).get("dataset", {}).get("name")
-        if isinstance((manifest.get("config") or {}).get("dataset"), dict) else None,
-        "unmatched_results": sorted(set(found) - known),
+        "dataset": dataset.get("name") if isinstance(dataset, dict) else None,
+        "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
     }
     return RunScores(
         name=name or manifest.get("run") or d.name,
@@ -259,7 +258,7 @@ def evaluate_results(
         sequences=per_seq,
         attributes=attrs,
         summary=summary,
-        failures={k: v for k, v in failures.items()},
+        failures=dict(failures),
         missing=tuple(m for m in missing if m not in failures),
         frequencies=freqs,
         meta=meta,
