@@ -211,3 +211,23 @@ def test_eval_cli_on_real_dtb70_results(shared_data, tmp_path, capsys):
     assert rc == 0, capsys.readouterr()
     sc = evaluate.load_scores(tmp_path / "out")
     assert round(sc.summary.overall.msr, 3) == 0.594 and round(sc.summary.overall.precision20, 3) == 0.789
+
+
+def test_real_got10k_layout_is_read(shared_data, tmp_path):
+    """NanoTrack v3's GOT-10k val results (got10k toolkit layout): detected, one box per timed
+    frame, tracker wall-clock rate from the _time.txt files."""
+    prefix = "NanoTrackV3/GOT-10k/nanotrack/"
+    with zipfile.ZipFile(shared_data / "results" / "NanoTrackV3.zip") as z:
+        names = [n for n in z.namelist() if n.startswith(prefix + "GOT-10k_Val_00000")]
+        z.extractall(tmp_path, names)
+    d = tmp_path / prefix
+    assert evaluate.detect_layout(d) == "got10k"
+    layout, found = evaluate.read_results(d)
+    assert len(found) == 9
+    for name, res in found.items():
+        times = np.loadtxt(d / name / f"{name}_time.txt")
+        assert res.boxes.shape == (len(times), 4) and np.all(res.boxes[:, 2:] > 0)
+        assert np.isnan(res.wall_ms["tracker"]).sum() == np.sum(times <= 0)
+        seq = Sequence(name, res.boxes.copy())  # its own boxes as ground truth: a perfect score
+        s = evaluate.score_results({name: res}, [seq])[0][name]
+        assert s.msr == pytest.approx(20 / 21) and s.nt2f == 1.0
