@@ -2,7 +2,8 @@
 (section 3.1, fig. "protocol comparison"): one lane per block, a bar from each call's start to
 its publish, skipped turns, and the held (zero-order-hold) output with the frame it comes from.
 
-``mata-eval timeline RUN_DIR SEQ [--out PNG] [--frames A:B]`` draws ``RUN_DIR/SEQ.trace.csv``."""
+``mata-eval timeline RUN_DIR SEQ [--out PNG] [--frames A:B] [--compare RUN_DIR ...]`` draws
+``RUN_DIR/SEQ.trace.csv`` (and the same sequence of other runs as panels below it)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import argparse
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Iterable, Mapping, Sequence
 
 from .scheduler import BLOCKS, LANES, TraceEvent, read_trace_csv
 
@@ -79,28 +80,55 @@ def held_segments(trace_rows: Iterable[Sequence], n_frames: int | None = None) -
     return segs
 
 
-def plot_timeline(trace_rows: Iterable[Sequence], path: str | Path, frames: tuple[int, int] | None = None,
-                  title: str | None = None, fps: float | None = None) -> Path:
+def plot_timeline(trace_rows: Iterable[Sequence] | Mapping[str, Iterable[Sequence]], path: str | Path,
+                  frames: tuple[int, int] | None = None, title: str | None = None,
+                  fps: float | None = None) -> Path:
     """Draw a trace as the paper's protocol figure and save it (PNG, PDF or SVG by extension).
 
+    ``trace_rows``: one trace, or ``{label: trace}`` for one panel per run stacked on a shared
+    frame axis (e.g. LTP, DSP and EOP of one sequence, as in the paper's figure).
     ``frames``: the half-open frame range ``(A, B)`` to show (default: the whole trace)."""
     from matplotlib.figure import Figure  # no pyplot: no global backend state
 
-    rows = _rows(trace_rows)
-    if not rows:
+    panels = ({str(k): _rows(v) for k, v in trace_rows.items()} if isinstance(trace_rows, Mapping)
+              else {"": _rows(trace_rows)})
+    if not panels or any(not rows for rows in panels.values()):
         raise ValueError("empty trace: nothing to draw")
-    fps = fps or infer_fps(rows)
-    n_frames = max(r.frame for r in rows) + 1
+    n_frames = max(r.frame for rows in panels.values() for r in rows) + 1
     a, b = frames if frames is not None else (0, n_frames)
     if not 0 <= a < b:
         raise ValueError(f"frame range {a}:{b}: expected 0 <= A < B")
-    calls = calls_from_trace(rows)
-    lanes = [l for l in LANES if l == "camera" or l in calls] + ["output"]
-    y = {lane: len(lanes) - 1 - i for i, lane in enumerate(lanes)}
-
+    heights = [len(_lanes(rows)) for rows in panels.values()]
     width = min(40.0, max(8.0, 0.25 * (b - a) + 3))
-    fig = Figure(figsize=(width, 0.7 * len(lanes) + 1.2))
-    ax = fig.add_subplot()
+    fig = Figure(figsize=(width, 0.6 * sum(heights) + 0.5 * len(panels) + 1.0))
+    axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False, height_ratios=heights)[:, 0]
+    for ax, (label, rows) in zip(axes, panels.items()):
+        panel_fps = fps or infer_fps(rows)
+        _draw_panel(ax, rows, a, b, panel_fps)
+        if label:
+            ax.set_title(label, loc="left", fontsize=9)
+    axes[-1].set_xlabel(f"camera frame ({fps or infer_fps(next(iter(panels.values()))):g} Hz)\nbars: start -> "
+                        "publish, labelled with the frame processed; x: skipped turn; arrows: detections")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _lanes(rows: list[TraceEvent]) -> list[str]:
+    blocks = {r.block for r in rows if r.event == "start"}
+    return [lane for lane in LANES if lane == "camera" or lane in blocks] + ["output"]
+
+
+def _draw_panel(ax, rows: list[TraceEvent], a: int, b: int, fps: float) -> None:
+    """One run's lanes: camera ticks, start -> publish bars, skips, detection arrows, held output."""
+    n_frames = max(r.frame for r in rows) + 1
+    calls = calls_from_trace(rows)
+    lanes = _lanes(rows)
+    y = {lane: len(lanes) - 1 - i for i, lane in enumerate(lanes)}
     for lane in lanes:
         ax.axhline(y[lane], color="#dddddd", lw=0.8, zorder=0)
     for k in range(a, b + 1):
@@ -131,7 +159,7 @@ def plot_timeline(trace_rows: Iterable[Sequence], path: str | Path, frames: tupl
     out_block = "estimator" if "estimator" in calls else "tracker"
     consumer = "estimator" if out_block == "estimator" else "output"
     for c in calls.get("tracker", [])[1:]:
-        if c.t_publish is not None and a <= c.t_publish * fps <= b:
+        if c.t_publish is not None and a <= c.t_publish * fps < b:
             x = c.t_publish * fps
             ax.annotate("", xy=(x, y[consumer] + 0.32), xytext=(x, y["tracker"] - 0.3),
                         arrowprops={"arrowstyle": "->", "color": COLORS["tracker"], "lw": 1.0})
@@ -147,18 +175,10 @@ def plot_timeline(trace_rows: Iterable[Sequence], path: str | Path, frames: tupl
             ax.text(x0 + 0.1, y["output"], "init" if (src == 0 and i == 0) else str(src),
                     va="center", ha="left", fontsize=7)
 
-    ax.set_yticks([y[l] for l in lanes])
-    ax.set_yticklabels([f"held {out_block}" if l == "output" else l for l in lanes])
+    ax.set_yticks([y[lane] for lane in lanes])
+    ax.set_yticklabels([f"held {out_block}" if lane == "output" else lane for lane in lanes])
     ax.set_xlim(a - 0.2, b + 0.2)
     ax.set_ylim(-0.7, len(lanes) - 0.3)
-    ax.set_xlabel(f"camera frame ({fps:g} Hz); bars: start -> publish, labelled with the frame processed; x: skipped turn")
-    if title:
-        ax.set_title(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
 
 
 def parse_frames(text: str) -> tuple[int, int]:
@@ -180,13 +200,19 @@ def cmd_timeline(args: argparse.Namespace) -> int:
         print(f"mata-eval timeline: no trace {trace_path}; sequences with a trace: "
               f"{', '.join(have) or '(none)'}", file=sys.stderr)
         return 2
-    try:
-        rows = read_trace_csv(trace_path.read_text())
-    except ValueError as exc:
-        print(f"mata-eval timeline: {trace_path}: {exc}", file=sys.stderr)
-        return 2
+    traces = {}
+    for d in [run_dir] + [Path(c) for c in (args.compare or [])]:
+        path = d / f"{args.seq}.trace.csv"
+        try:
+            traces[d.name] = read_trace_csv(path.read_text())
+        except OSError as exc:
+            print(f"mata-eval timeline: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        except ValueError as exc:
+            print(f"mata-eval timeline: {path}: {exc}", file=sys.stderr)
+            return 2
     out = Path(args.out) if args.out else run_dir / f"{args.seq}.timeline.png"
-    plot_timeline(rows, out, frames=args.frames, title=f"{run_dir.name} / {args.seq}")
+    plot_timeline(traces, out, frames=args.frames, title=args.seq)
     print(out)
     return 0
 
@@ -199,4 +225,6 @@ def add_cli(subparsers) -> None:
     p.add_argument("--out", help="image file to write (default: RUN_DIR/SEQ.timeline.png)")
     p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
                    help="frame range to draw, half-open (default: all; long sequences read best with ~60 frames)")
+    p.add_argument("--compare", nargs="+", metavar="RUN_DIR",
+                   help="more run folders (e.g. other protocols) drawn as panels below, like the paper's figure")
     p.set_defaults(func=cmd_timeline)

@@ -99,6 +99,18 @@ def test_timeline_plot_and_cli(tmp_path):
     assert args.func(args) == 0
     img = cv2.imread(str(tmp_path / "seqA.timeline.png"))
     assert img is not None and img.shape[1] > img.shape[0]
+    other = tmp_path / "eop"
+    other.mkdir()
+    eop = run_sequence(make_sequence(40), FrameTracker(), None, None, EOP(EOP.Params(tracker_hz=10.0)),
+                       np.random.default_rng(0))
+    (other / "seqA.trace.csv").write_text(eop.trace_csv())
+    args = parser.parse_args(["timeline", str(tmp_path), "seqA", "--compare", str(other), "--out",
+                              str(tmp_path / "cmp.png")])
+    assert args.func(args) == 0
+    stacked = cv2.imread(str(tmp_path / "cmp.png"))
+    assert stacked.shape[0] > img.shape[0]  # two panels
+    args = parser.parse_args(["timeline", str(tmp_path), "seqA", "--compare", str(tmp_path / "none")])
+    assert args.func(args) == 2
     args = parser.parse_args(["timeline", str(tmp_path), "nope"])
     assert args.func(args) == 2
     with pytest.raises(SystemExit):
