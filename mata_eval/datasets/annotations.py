@@ -1,0 +1,300 @@
+"""Parsing helpers shared by the dataset plugins: ground-truth box files, attribute flag files,
+and the UAV123 frame-range tables (the benchmark kit's ``configSeqs.m`` and got10k's JSON).
+
+Everything here reads text only; no image is ever opened. Bad input raises
+:class:`AnnotationError` naming the file, the line and what was expected.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping
+
+import numpy as np
+
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
+
+
+class DatasetError(ValueError):
+    """A dataset folder is missing something the loader needs; says which file and where."""
+
+
+class AnnotationError(DatasetError):
+    """An annotation file is malformed: names the file, the line and what was expected."""
+
+    def __init__(self, path: str | Path, line: int | None, message: str):
+        self.path = str(path)
+        self.line = line
+        where = f"{path}:{line}" if line is not None else str(path)
+        super().__init__(f"{where}: {message}")
+
+
+# --- ground-truth boxes ----------------------------------------------------------------------
+
+_SPLIT = re.compile(r"[,\t ;]+")
+
+
+def _values(text: str) -> list[str]:
+    return [v for v in _SPLIT.split(text.strip()) if v]
+
+
+def polygon_to_box(corners: np.ndarray) -> np.ndarray:
+    """Axis-aligned ``x, y, w, h`` of (N, 8) polygons ``x1, y1, ..., x4, y4`` (VOT): the min/max
+    of the corner coordinates, as the VOT toolkit's ``Polygon.convert(RegionType.RECTANGLE)``."""
+    xs, ys = corners[:, 0::2], corners[:, 1::2]
+    x0, y0 = xs.min(axis=1), ys.min(axis=1)
+    return np.stack([x0, y0, xs.max(axis=1) - x0, ys.max(axis=1) - y0], axis=1)
+
+
+def read_boxes(path: str | Path, *, allow_polygons: bool = True) -> np.ndarray:
+    """Ground truth of one sequence as an (N, 4) float ``x, y, w, h`` array.
+
+    One line per frame; values separated by commas, tabs or spaces (mixed is fine). A line holds
+    4 values (``x, y, w, h``) or, when ``allow_polygons``, 8 values (a VOT polygon, converted to
+    its axis-aligned bounding box). ``NaN`` tokens are accepted. Rows that are not a valid box
+    (a NaN, or width/height <= 0 such as the ``0,0,0,0`` some datasets use for an absent target)
+    become all-NaN rows, which every metric skips. Blank lines at the end of the file are ignored;
+    blank lines in the middle are an error (they would shift every later frame)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise DatasetError(f"ground-truth file not found: {path}") from None
+    except UnicodeDecodeError as e:
+        raise AnnotationError(path, None, f"not a text file ({e})") from None
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()
+    if not lines:
+        raise AnnotationError(path, None, "empty ground-truth file: expected one 'x,y,w,h' line per frame")
+    widths = (4, 8) if allow_polygons else (4,)
+    expected = ("4 values 'x,y,w,h' or 8 polygon corners 'x1,y1,...,x4,y4'" if allow_polygons
+                else "4 values 'x,y,w,h'")
+    rows: list[list[float]] = []
+    width = None
+    for i, line in enumerate(lines, start=1):
+        vals = _values(line)
+        if not vals:
+            raise AnnotationError(path, i, f"blank line inside the file; expected {expected} on every line")
+        if len(vals) not in widths:
+            raise AnnotationError(path, i, f"expected {expected} separated by comma, tab or space; "
+                                           f"got {len(vals)} value(s): {line.strip()!r}")
+        if width is None:
+            width = len(vals)
+        elif len(vals) != width:
+            raise AnnotationError(path, i, f"expected {width} values like the first line, got {len(vals)}: "
+                                           f"{line.strip()!r}")
+        try:
+            rows.append([float(v) for v in vals])
+        except ValueError:
+            raise AnnotationError(path, i, f"expected numbers (or NaN), got {line.strip()!r}") from None
+    arr = np.asarray(rows, dtype=np.float64)
+    boxes = polygon_to_box(arr) if width == 8 else arr
+    return invalid_to_nan(boxes)
+
+
+def invalid_to_nan(boxes: np.ndarray) -> np.ndarray:
+    """Rows with a non-finite value or a width/height <= 0 set to NaN (absent / invalid target)."""
+    out = np.array(boxes, dtype=np.float64, copy=True)
+    bad = ~np.isfinite(out).all(axis=1) | (out[:, 2] <= 0) | (out[:, 3] <= 0)
+    out[bad] = np.nan
+    return out
+
+
+# --- attribute flags -------------------------------------------------------------------------
+
+def read_attribute_flags(path: str | Path, names: Iterable[str]) -> frozenset[str]:
+    """The attribute names whose flag is 1 in a one-line ``0,1,...`` file (OTB-style ``att`` files).
+
+    ``names`` gives the flag order (e.g. the dataset's ``ATTRIBUTE_ORDER.txt``)."""
+    path = Path(path)
+    names = tuple(names)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise DatasetError(f"attribute file not found: {path}") from None
+    lines = [(i, ln) for i, ln in enumerate(text.splitlines(), start=1) if ln.strip()]
+    if len(lines) != 1:
+        raise AnnotationError(path, lines[1][0] if len(lines) > 1 else None,
+                              f"expected exactly one line of {len(names)} 0/1 flags "
+                              f"({', '.join(names)}), found {len(lines)} non-empty lines")
+    lineno, line = lines[0]
+    vals = _values(line)
+    if len(vals) != len(names) or any(v not in ("0", "1") for v in vals):
+        raise AnnotationError(path, lineno, f"expected {len(names)} flags 0 or 1 in the order "
+                                            f"{', '.join(names)}; got {line.strip()!r}")
+    return frozenset(n for n, v in zip(names, vals) if v == "1")
+
+
+# --- UAV123 frame-range tables ---------------------------------------------------------------
+
+@dataclass(frozen=True)
+class FrameRange:
+    """One sub-sequence of a longer video: frames ``start..end`` (1-based, inclusive) of the folder
+    ``video``, named ``{start:0{digits}d}.{ext}``."""
+
+    name: str
+    video: str
+    start: int
+    end: int
+    digits: int = 6
+    ext: str = "jpg"
+
+    def __len__(self) -> int:
+        return self.end - self.start + 1
+
+    def frame_names(self) -> list[str]:
+        return [f"{k:0{self.digits}d}.{self.ext}" for k in range(self.start, self.end + 1)]
+
+
+_TABLE = re.compile(r"^\s*seq(\w+)\s*=\s*\{", re.MULTILINE)
+_FIELD = re.compile(r"'(\w+)'\s*,\s*('(?:[^']*)'|\[[^\]]*\]|[-+\d.eE]+)")
+
+
+def parse_config_seqs(path: str | Path) -> dict[str, dict[str, FrameRange]]:
+    """The tables of a MATLAB ``configSeqs.m`` (OTB / UAV123 benchmark kit syntax)::
+
+        seqUAV123={struct('name','bird1_2','path','d:\\data_seq\\UAV123\\bird1\\',
+                          'startFrame',775,'endFrame',1477,'nz',6,'ext','jpg',...),...
+
+    Returns ``{table: {sequence: FrameRange}}`` with table names without the ``seq`` prefix
+    (``UAV123``, ``UAV20L``, ``UAV123_10fps``, ...), sequences in file order. The video folder is
+    the last component of each struct's ``path``. Written by hand because it is MATLAB source,
+    not a data format any library reads; the grammar used is the kit's: one ``seqX = {...};``
+    cell array of ``struct(...)`` literals per table."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise DatasetError(f"frame-range file not found: {path}") from None
+    # drop MATLAB comments (to end of line), keeping line numbers
+    text = "\n".join(re.sub(r"%.*$", "", ln) for ln in text.split("\n"))
+    tables: dict[str, dict[str, FrameRange]] = {}
+    starts = list(_TABLE.finditer(text))
+    for i, m in enumerate(starts):
+        end = text.find("};", m.end())
+        if end < 0:
+            end = starts[i + 1].start() if i + 1 < len(starts) else len(text)
+        body = text[m.end() - 1:end + 1]
+        table: dict[str, FrameRange] = {}
+        for s in re.finditer(r"struct\s*\(", body):
+            close = body.find(")", s.end())
+            # init_rect '[0,0,0,0]' contains no ')', so the first ')' closes the struct
+            fields_text = body[s.end():close]
+            lineno = text.count("\n", 0, m.end() - 1 + s.start()) + 1
+            fields = {k: v for k, v in _FIELD.findall(fields_text)}
+            missing = [k for k in ("name", "path", "startFrame", "endFrame") if k not in fields]
+            if missing:
+                raise AnnotationError(path, lineno, f"struct without {', '.join(missing)}; expected "
+                                                    "struct('name',...,'path',...,'startFrame',N,'endFrame',M,...)")
+            try:
+                name = fields["name"].strip("'")
+                video = re.split(r"[\\/]+", fields["path"].strip("'").rstrip("\\/"))[-1]
+                start, stop = int(fields["startFrame"]), int(fields["endFrame"])
+                digits = int(fields.get("nz", "6"))
+                ext = fields.get("ext", "'jpg'").strip("'")
+            except ValueError:
+                raise AnnotationError(path, lineno, "expected integer startFrame, endFrame and nz") from None
+            if stop < start or start < 1:
+                raise AnnotationError(path, lineno, f"sequence {name!r}: expected 1 <= startFrame <= endFrame, "
+                                                    f"got {start}..{stop}")
+            table[name] = FrameRange(name, video, start, stop, digits, ext)
+        tables[m.group(1)] = table
+    if not tables:
+        raise AnnotationError(path, None, "no 'seqNAME = {struct(...), ...};' table found; expected the "
+                                          "UAV123 benchmark kit's util/configSeqs.m")
+    return tables
+
+
+def parse_frame_range_json(path: str | Path) -> dict[str, dict[str, FrameRange]]:
+    """got10k's ``uav123.json``: ``{"UAV123": {seq: {"start_frame", "end_frame", "folder_name"}},
+    "UAV20L": {...}}``. Same return shape as :func:`parse_config_seqs`."""
+    path = Path(path)
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"frame-range file not found: {path}") from None
+    except json.JSONDecodeError as e:
+        raise AnnotationError(path, e.lineno, f"invalid JSON ({e.msg})") from None
+    if not isinstance(data, Mapping):
+        raise AnnotationError(path, None, "expected an object {table: {sequence: {start_frame, end_frame, "
+                                          "folder_name}}} (got10k's uav123.json)")
+    tables: dict[str, dict[str, FrameRange]] = {}
+    for tname, seqs in data.items():
+        if not isinstance(seqs, Mapping):
+            raise AnnotationError(path, None, f"table {tname!r}: expected an object of sequences")
+        table = {}
+        for name, info in seqs.items():
+            try:
+                start, stop = int(info["start_frame"]), int(info["end_frame"])
+                video = str(info.get("folder_name", name))
+            except (KeyError, TypeError, ValueError):
+                raise AnnotationError(path, None, f"{tname}.{name}: expected integer 'start_frame' and "
+                                                  "'end_frame' and a 'folder_name'") from None
+            if stop < start or start < 1:
+                raise AnnotationError(path, None, f"{tname}.{name}: expected 1 <= start_frame <= end_frame, "
+                                                  f"got {start}..{stop}")
+            table[name] = FrameRange(name, video, start, stop)
+        tables[tname] = table
+    return tables
+
+
+def read_frame_ranges(path: str | Path) -> dict[str, dict[str, FrameRange]]:
+    """Frame-range tables from a ``configSeqs.m`` or a got10k-style ``.json`` (by extension)."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        return parse_frame_range_json(path)
+    return parse_config_seqs(path)
+
+
+# --- frames ----------------------------------------------------------------------------------
+
+def _natural_key(name: str) -> tuple:
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name))
+
+
+def list_images(folder: str | Path) -> list[str]:
+    """Image files of ``folder`` in natural order (``2.jpg`` before ``10.jpg``); [] if absent."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    names = [p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()]
+    return [str(folder / n) for n in sorted(names, key=_natural_key)]
+
+
+def select(names: list[str], wanted: list[str] | None, where: str) -> list[str]:
+    """``names`` restricted to ``wanted`` (in ``wanted``'s order); unknown names are an error."""
+    if wanted is None:
+        return names
+    known = set(names)
+    unknown = [w for w in wanted if w not in known]
+    if unknown:
+        sample = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+        raise DatasetError(f"{where}: unknown sequence(s) {', '.join(map(repr, unknown))}; "
+                           f"available ({len(names)}): {sample}")
+    return list(dict.fromkeys(wanted))
+
+
+class MissingFrames:
+    """``Sequence.loader`` for a sequence whose frame folder is absent: listing works (annotations
+    only) and :meth:`Sequence.image` raises a :class:`FrameReadError` saying where frames were
+    expected. A class rather than a closure so sequences stay picklable for worker processes."""
+
+    def __init__(self, sequence: str, looked_in: Iterable[str | Path]):
+        self.sequence = sequence
+        self.looked_in = tuple(str(p) for p in looked_in)
+
+    def __call__(self, k: int) -> np.ndarray:
+        from ..sequence import FrameReadError
+
+        raise FrameReadError(f"cannot read frame {k} of sequence {self.sequence!r}: no image files found "
+                             f"in {' or '.join(self.looked_in)} (only the annotations are present)")
+
+
+def annotation_files(folder: Path, suffix: str = ".txt") -> list[Path]:
+    """``*<suffix>`` files of an annotation folder, without the kits' README / ATTRIBUTE_ORDER."""
+    return sorted(p for p in folder.glob(f"*{suffix}") if p.is_file()
+                  and not p.name.upper().startswith(("README", "ATTRIBUTE_ORDER")))

@@ -1,0 +1,73 @@
+"""Generic folder layout: one folder per sequence, its frames and a ground-truth file::
+
+    <root>/<seq>/groundtruth_rect.txt   (or groundtruth.txt)  x,y,w,h or VOT 8-value polygons,
+    <root>/<seq>/img/0001.jpg           (or imgs/, color/, or the frames in <seq>/ itself)
+
+Values may be comma, tab or space separated; polygons become their axis-aligned bounding box.
+``root`` may also be a single sequence folder. Frame folders are listed (never read) when the
+sequences are listed; a missing frame folder is reported by ``Sequence.image``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..params import param
+from ..sequence import Sequence
+from .annotations import DatasetError, MissingFrames, list_images, read_boxes, select
+
+
+class FolderDataset:
+    """Generic layout: <root>/<seq>/ with frames and groundtruth(_rect).txt (4 values or VOT polygons)."""
+
+    name = "folder"
+
+    @dataclass(frozen=True)
+    class Params:
+        root: str = field(metadata={"doc": "folder holding one folder per sequence (or one sequence folder)"})
+        sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
+        groundtruth: list[str] = param(["groundtruth_rect.txt", "groundtruth.txt"],
+                                       "ground-truth file names tried in each sequence folder, in order")
+        frames: list[str] = param(["img", "imgs", "color", "."],
+                                  "frame sub-folders tried in each sequence folder, in order ('.' = the folder itself)")
+        fps: float = param(30.0, "camera frame rate (frames per second)")
+
+    def __init__(self, params: Params):
+        self.params = params
+        self.root = Path(params.root).expanduser()
+
+    def _gt_file(self, folder: Path) -> Path | None:
+        return next((folder / g for g in self.params.groundtruth if (folder / g).is_file()), None)
+
+    def _sequence_folders(self) -> dict[str, Path]:
+        if not self.root.is_dir():
+            raise DatasetError(f"folder dataset root not found: {self.root}")
+        found = {d.name: d for d in sorted(self.root.iterdir()) if d.is_dir() and self._gt_file(d)}
+        if not found and self._gt_file(self.root):
+            found = {self.root.name: self.root}
+        if not found:
+            raise DatasetError(f"{self.root}: no sequence folder with a ground-truth file "
+                               f"({' or '.join(self.params.groundtruth)}); expected <root>/<seq>/groundtruth_rect.txt")
+        return found
+
+    def sequences(self) -> list[Sequence]:
+        folders = self._sequence_folders()
+        names = select(list(folders), self.params.sequences, f"dataset folder ({self.root})")
+        out = []
+        for name in names:
+            d = folders[name]
+            gt_path = self._gt_file(d)
+            gt = read_boxes(gt_path)
+            cands = [d / f for f in self.params.frames]
+            frames: list[str] = []
+            for c in cands:
+                frames = list_images(c)
+                if frames:
+                    break
+            if frames and len(frames) != len(gt):
+                raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines but {len(frames)} frames in "
+                                   f"{Path(frames[0]).parent}; expected one line per frame")
+            out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, frame_paths=tuple(frames),
+                                loader=None if frames else MissingFrames(name, cands)))
+        return out

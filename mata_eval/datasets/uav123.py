@@ -1,0 +1,180 @@
+"""UAV123, UAV123_10fps and UAV20L in the benchmark's official layout (Mueller et al., ECCV 2016)::
+
+    <root>/data_seq/UAV123/<video>/000001.jpg        frames of the long videos
+    <root>/anno/UAV123/<seq>.txt                     x,y,w,h per frame, NaN rows when absent
+    <root>/anno/UAV123/att/<seq>.txt                 12 flags, order of ATTRIBUTE_ORDER.txt
+
+(``UAV20L``: ``anno/UAV20L/``; ``UAV123_10fps``: ``data_seq/UAV123_10fps/``,
+``anno/UAV123_10fps/``.) Sequences are frame ranges of the videos, from the benchmark kit's
+``configSeqs.m`` table (or got10k's ``uav123.json``), which is read from the user's dataset folder.
+Listing sequences reads annotations only; frames are read by ``Sequence.image(k)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..params import param
+from ..sequence import Sequence
+from .annotations import (DatasetError, FrameRange, list_images, read_attribute_flags, read_boxes,
+                          read_frame_ranges, select)
+
+#: Flag order of ``anno/UAV123/att/*.txt`` (the dataset's ATTRIBUTE_ORDER.txt).
+ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")
+
+#: Where a frame-range table is looked for when ``frame_ranges`` is not given, relative to root
+#: and then to the annotation folder.
+FRAME_RANGE_CANDIDATES = ("configSeqs.m", "util/configSeqs.m", "anno/configSeqs.m",
+                          "uav123.json", "got10k_uav123_frame_ranges.json")
+
+
+def _frame_range_help(subset: str, tried: list[Path]) -> str:
+    return (f"no frame-range table for {subset}: expected the UAV123 benchmark kit's configSeqs.m "
+            f"(util/configSeqs.m in the kit downloaded with the dataset from "
+            f"https://cemse.kaust.edu.sa/ivul/uav123; it holds the seqUAV123, seqUAV20L and "
+            f"seqUAV123_10fps tables) or got10k's uav123.json (got10k/datasets/uav123.json in the "
+            f"got10k toolkit; UAV123 and UAV20L only). Copy it to <root>/configSeqs.m or next to the "
+            f"annotations, or pass frame_ranges: <path>. Looked for: {', '.join(map(str, tried))}")
+
+
+class _UAV123Layout:
+    """Shared loader; subclasses fix the subset folder, the configSeqs table and the fps."""
+
+    name = ""
+    subset = "UAV123"
+    fps = 30.0
+
+    @dataclass(frozen=True)
+    class Params:
+        root: str = field(metadata={"doc": "dataset folder holding data_seq/ and anno/"})
+        sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
+        frame_ranges: str | None = param(
+            None, "configSeqs.m of the UAV123 benchmark kit, or got10k's uav123.json "
+                  "(default: found under root or next to the annotations)")
+        annotations: str | None = param(
+            None, "folder with <seq>.txt and att/ (default: <root>/anno/<subset>)")
+
+    def __init__(self, params: Params):
+        self.params = params
+        self.root = Path(params.root).expanduser()
+
+    # -- folders --
+    @property
+    def anno_dir(self) -> Path:
+        if self.params.annotations:
+            return Path(self.params.annotations).expanduser()
+        return self.root / "anno" / self.subset
+
+    @property
+    def frames_dir(self) -> Path:
+        return self.root / "data_seq" / self.subset
+
+    def frame_range_file(self) -> Path:
+        """The frame-range table in use: ``frame_ranges`` or the first candidate found."""
+        if self.params.frame_ranges:
+            path = Path(self.params.frame_ranges).expanduser()
+            if not path.is_file():
+                raise DatasetError(f"frame_ranges: file not found: {path}. "
+                                   + _frame_range_help(self.subset, [path]))
+            return path
+        tried = []
+        for base in dict.fromkeys([self.root, self.anno_dir, self.anno_dir.parent]):
+            for rel in FRAME_RANGE_CANDIDATES:
+                p = base / rel
+                tried.append(p)
+                if p.is_file():
+                    return p
+        raise DatasetError(_frame_range_help(self.subset, tried))
+
+    def frame_table(self) -> tuple[dict[str, FrameRange], set[str]]:
+        """This subset's table, and every sequence or video name any table of the file mentions."""
+        path = self.frame_range_file()
+        tables = read_frame_ranges(path)
+        if self.subset not in tables:
+            raise DatasetError(f"{path}: no table for {self.subset} (found: {', '.join(tables)}). "
+                               + ("got10k's JSON has no UAV123_10fps table; use the benchmark kit's configSeqs.m. "
+                                  if path.suffix == ".json" else "")
+                               + _frame_range_help(self.subset, [path]))
+        mentioned = {n for t in tables.values() for r in t.values() for n in (r.name, r.video)}
+        return tables[self.subset], mentioned
+
+    # -- listing --
+    def _annotation_names(self) -> list[str]:
+        d = self.anno_dir
+        if not d.is_dir():
+            raise DatasetError(f"annotation folder not found: {d}; expected the official layout "
+                               f"<root>/anno/{self.subset}/<seq>.txt (or set annotations: <folder>)")
+        return sorted(p.stem for p in d.glob("*.txt")
+                      if p.is_file() and p.stem not in ("ATTRIBUTE_ORDER", "README") and not p.stem.startswith("README"))
+
+    def sequence_names(self) -> list[str]:
+        """Table sequences whose annotation exists, in table order, then annotation files that no
+        table mentions (neither as a sequence nor as a video it splits): those are whole videos."""
+        return self._names(*self.frame_table())
+
+    def _names(self, table: dict[str, FrameRange], mentioned: set[str]) -> list[str]:
+        have = set(self._annotation_names())
+        missing = [n for n in table if n not in have]
+        if missing and len(missing) == len(table):
+            raise DatasetError(f"{self.anno_dir}: none of the {len(table)} {self.subset} sequences of the "
+                               f"frame-range table has an annotation file <seq>.txt (e.g. {missing[0]}.txt)")
+        listed = [n for n in table if n in have]
+        extra = [n for n in sorted(have) if n not in mentioned]
+        if missing and self.params.sequences is not None:
+            absent = [n for n in self.params.sequences if n in missing]
+            if absent:
+                raise DatasetError(f"{self.anno_dir}: no annotation file for {', '.join(absent)} "
+                                   f"(expected {absent[0]}.txt)")
+        return select(listed + extra, self.params.sequences, f"dataset {self.name} ({self.anno_dir})")
+
+    def sequences(self) -> list[Sequence]:
+        table, mentioned = self.frame_table()
+        return [self._load(n, table.get(n)) for n in self._names(table, mentioned)]
+
+    def _load(self, name: str, rng: FrameRange | None) -> Sequence:
+        gt_path = self.anno_dir / f"{name}.txt"
+        gt = read_boxes(gt_path, allow_polygons=False)
+        if rng is not None:
+            if len(rng) != len(gt):
+                raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines, but the frame-range table gives "
+                                   f"{name} frames {rng.start}..{rng.end} of {rng.video} ({len(rng)} frames)")
+            folder = self.frames_dir / rng.video
+            frames = tuple(str(folder / f) for f in rng.frame_names())
+            meta = {"video": rng.video, "start_frame": rng.start, "end_frame": rng.end}
+        else:
+            folder = self.frames_dir / name
+            found = list_images(folder)
+            if found and len(found) != len(gt):
+                raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines but {len(found)} frames in {folder} "
+                                   "(a sequence missing from the frame-range table is read as the whole video)")
+            frames = tuple(found) if found else tuple(str(folder / f"{k:06d}.jpg") for k in range(1, len(gt) + 1))
+            meta = {"video": name, "start_frame": 1, "end_frame": len(gt)}
+        att_dir = self.anno_dir / "att"
+        attrs = read_attribute_flags(att_dir / f"{name}.txt", ATTRIBUTES) if att_dir.is_dir() else frozenset()
+        return Sequence(name=name, groundtruth=gt, fps=self.fps, attributes=attrs,
+                        frame_paths=frames, meta=meta)
+
+
+class UAV123(_UAV123Layout):
+    """UAV123 (123 aerial sequences, 30 fps) in the official layout, frame ranges from configSeqs."""
+
+    name = "uav123"
+    subset = "UAV123"
+    fps = 30.0
+
+
+class UAV123_10fps(_UAV123Layout):
+    """UAV123 temporally down-sampled to 10 fps (data_seq/UAV123_10fps, anno/UAV123_10fps)."""
+
+    name = "uav123_10fps"
+    subset = "UAV123_10fps"
+    fps = 10.0
+
+
+class UAV20L(_UAV123Layout):
+    """UAV20L: the 20 long-term UAV123 videos, whole (anno/UAV20L), 30 fps."""
+
+    name = "uav20l"
+    subset = "UAV20L"
+    fps = 30.0
