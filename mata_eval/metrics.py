@@ -415,10 +415,13 @@ def score_sequence(
 METRIC_NAMES = ("sr", "msr", "pr", "precision20", "nt2f")
 
 #: DESIGN.md challenge groups, each "any of" these sequence attributes (compared upper-case).
+#: UAV123: FOC / POC (full / partial occlusion), SOB (similar object), FM (fast motion), OV;
 #: AOC marks a sequence with augmented occlusion events (set by the occlusion augmentation).
+#: The same concepts in DTB70 (OCC, SOA) and UAVDT (LO, large occlusion) are included; they
+#: change nothing on UAV123, whose attribute names differ.
 DEFAULT_GROUPS: dict[str, tuple[str, ...]] = {
-    "occlusion": ("FOC", "POC", "AOC"),
-    "distractor": ("SOB",),
+    "occlusion": ("FOC", "POC", "AOC", "OCC", "LO"),
+    "distractor": ("SOB", "SOA"),
     "high dynamic": ("FM",),
     "out of view": ("OV",),
 }

@@ -205,9 +205,10 @@ def test_eval_cli_on_real_dtb70_results(shared_data, tmp_path, capsys):
         pytest.skip("dataset plugin 'dtb70' not available yet")
     with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
         z.extractall(tmp_path, [n for n in z.namelist() if n.startswith("DTB70/SiamAPN++/")])
+    ann = shared_data / "annotations" / "DTB70"  # annotation-only folder: <seq>.txt + att/
     rc = cli.main(["eval", str(tmp_path / "DTB70" / "SiamAPN++"), "--dataset", "dtb70",
-                   "--root", str(shared_data / "annotations" / "DTB70"), "--profile", "pysot-toolkit",
-                   "--output", str(tmp_path / "out")])
+                   "--root", str(ann), "--set", f"annotations={ann}", "--profile", "pysot-toolkit",
+                   "--output", str(tmp_path / "out"), "--challenges"])
     assert rc == 0, capsys.readouterr()
     sc = evaluate.load_scores(tmp_path / "out")
     assert round(sc.summary.overall.msr, 3) == 0.594 and round(sc.summary.overall.precision20, 3) == 0.789
