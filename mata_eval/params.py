@@ -78,7 +78,10 @@ def build_params(
                if n not in kwargs and f.default is _MISSING and f.default_factory is _MISSING]  # type: ignore[misc]
     if missing:
         raise ConfigError(where(path), path, f"missing required parameter(s): {', '.join(missing)}")
-    return params_cls(**kwargs)
+    try:
+        return params_cls(**kwargs)
+    except (ValueError, TypeError) as exc:  # a plugin's own cross-field checks (__post_init__)
+        raise ConfigError(where(path), path, str(exc)) from None
 
 
 def _coerce(value: Any, tp: Any, kp: tuple, where: Callable) -> Any:

@@ -50,3 +50,18 @@ def test_describe_lists_type_default_doc():
     assert info["rate"].doc == "tracker rate in Hz"
     assert info["path"].type == "str or null"
     assert info["sizes"].default == [1, 2]
+
+
+@dataclass(frozen=True)
+class Checked:
+    lo: float = param(0.0, "lower bound")
+    hi: float = param(1.0, "upper bound")
+
+    def __post_init__(self):
+        if self.hi <= self.lo:
+            raise ValueError(f"hi must be greater than lo, got lo={self.lo}, hi={self.hi}")
+
+
+def test_plugin_cross_field_check_gets_the_location():
+    with pytest.raises(ConfigError, match=r"^exp.yaml:3: estimator: hi must be greater than lo"):
+        build_params(Checked, {"lo": 2, "hi": 1}, ("estimator",), lambda kp: "exp.yaml:3")
