@@ -1,0 +1,180 @@
+"""VitTrack (OpenCV model zoo, 2023sep) through an ONNX backend, with our own crop, pre- and
+post-processing so the MATA prior can move the search region and the 16x16 score map is exposed.
+
+Pre/post-processing follows ``cv2.TrackerVit`` (OpenCV ``modules/video/src/tracking/
+tracker_vit.cpp``): template = square crop of side ``ceil(sqrt(w h) * 2)`` resized to 128,
+search = side ``ceil(sqrt(w h) * 4)`` resized to 256, zero padding outside the image; blob =
+``(pixel - 255 mean) / (255 std)`` with the ImageNet mean/std applied to the channels **as
+stored (BGR)**, with OpenCV's (quaternion) per-channel scale, see :func:`blob_scale`; the score map is
+multiplied by a centred 16x16 Hann window and its argmax cell gives the box
+``((i + offset) / 16, size)`` in crop units. With ``opencv_rounding`` the state is kept as
+OpenCV's integer rectangle (floor), which is what parity with ``cv2.TrackerVit`` needs on
+10-pixel targets.
+
+Confidence: the paper's window score extended to 2-D (section 2.1, last paragraph) on the raw
+score map (normalised as a PMF, square window around its peak); the raw peak and OpenCV's
+Hann-weighted tracking score are in ``extra``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from mata_eval.hooks import hookimpl
+from mata_eval.params import param
+from mata_eval.types import Box, TrackerOutput
+
+from .crop import crop_square
+from .model_files import resolve_model
+from .window_score import map_window_score
+
+_MEAN_RGB = np.array([0.485, 0.456, 0.406])
+_STD_RGB = np.array([0.229, 0.224, 0.225])
+_FEAT = 16
+
+
+def blob_scale(normalisation: str) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Per-channel ``(mean, scale, swap_rb)`` with ``blob = (pixel - mean) * scale``.
+
+    ``opencv``: what ``cv2.TrackerVit`` computes. It sets ``scalefactor = (1.0 / std) / 255``
+    on a ``cv::Scalar``, and OpenCV's ``double / Scalar`` is a *quaternion* inverse,
+    ``conj(s) / |s|^2``, so the scale is ``(s0, -s1, -s2) / (|s|^2 255)`` on the BGR channels
+    as stored, with the RGB means subtracted from B, G, R in that order. Verified against the
+    cv2 tracking score (tests/test_trackers_real.py). ``imagenet``: the textbook ImageNet
+    normalisation on RGB, ``(pixel / 255 - mean) / std``.
+    """
+    if normalisation == "opencv":
+        scale = np.array([_STD_RGB[0], -_STD_RGB[1], -_STD_RGB[2]]) / (np.sum(_STD_RGB ** 2) * 255.0)
+        return (_MEAN_RGB * 255.0).astype(np.float32), scale.astype(np.float32), False
+    if normalisation == "imagenet":
+        return (_MEAN_RGB * 255.0).astype(np.float32), (1.0 / (_STD_RGB * 255.0)).astype(np.float32), True
+    raise ValueError(f"vittrack: normalisation must be 'opencv' or 'imagenet', got {normalisation!r}")
+
+
+def hann_centered(n: int) -> np.ndarray:
+    """OSTrack/OpenCV 'centered' Hann window: ``0.5 (1 - cos(2 pi k / (n + 1)))``, k = 1..n."""
+    k = np.arange(1, n + 1, dtype=np.float64)
+    return (0.5 * (1.0 - np.cos(2.0 * np.pi * k / (n + 1)))).astype(np.float32)
+
+
+def to_blob(patch_bgr: np.ndarray, size: int, normalisation: str = "opencv") -> np.ndarray:
+    """Resize to ``size`` (bilinear) and normalise (see :func:`blob_scale`), NCHW float32."""
+    if patch_bgr.shape[0] != size:
+        patch_bgr = cv2.resize(patch_bgr, (size, size), interpolation=cv2.INTER_LINEAR)
+    mean, scale, swap = blob_scale(normalisation)
+    if swap:
+        patch_bgr = patch_bgr[:, :, ::-1]
+    blob = (patch_bgr.astype(np.float32) - mean) * scale
+    return np.ascontiguousarray(blob.transpose(2, 0, 1)[None])
+
+
+class VitTrack:
+    """VitTrack (OpenCV zoo) on ONNX Runtime/TensorRT; prior-aware; 2-D window-score confidence."""
+
+    name = "vittrack"
+
+    @dataclass(frozen=True)
+    class Params:
+        model: str | None = param(None, "path to object_tracking_vittrack_2023sep.onnx (or $MATA_VITTRACK_ONNX)")
+        backend: Literal["onnxruntime", "tensorrt"] = param("onnxruntime", "inference backend")
+        device: Literal["cpu", "cuda", "tensorrt"] = param("cpu", "ONNX Runtime device / provider")
+        threads: int = param(1, "ONNX Runtime intra-op threads (0 = library default)")
+        template_factor: float = param(2.0, "template crop side relative to sqrt(w h)")
+        search_factor: float = param(4.0, "search crop side relative to sqrt(w h)")
+        window_alpha: float = param(0.125, "2-D window score: side = 2 round(alpha 16 / 2) + 1 cells (0.125 -> 3x3)")
+        score_threshold: float = param(0.2, "hold the last box when the Hann-weighted peak is below (cv2 default)")
+        opencv_rounding: bool = param(True, "keep integer (floored) boxes exactly like cv2.TrackerVit")
+        normalisation: Literal["opencv", "imagenet"] = param(
+            "opencv", "input normalisation: 'opencv' = exactly cv2.TrackerVit's blob, 'imagenet' = RGB mean/std")
+
+    def __init__(self, params: "VitTrack.Params | None" = None):
+        self.params = params or self.Params()
+        self._path = resolve_model("vittrack", self.params.model)   # fails early, naming the file
+        self._run = None
+        self._hann = np.outer(hann_centered(_FEAT), hann_centered(_FEAT))
+        self._box: np.ndarray | None = None
+
+    def _net(self):
+        if self._run is None:
+            from .backends import open_onnx
+
+            p = self.params
+            self._run = open_onnx(self._path, p.backend, p.device, p.threads)
+        return self._run
+
+    def _crop(self, image: np.ndarray, box: np.ndarray, factor: float) -> tuple[np.ndarray, int, int, int]:
+        """Square crop around ``box``; returns (patch, x1, y1, crop_sz) in image pixels."""
+        x, y, w, h = box
+        if self.params.opencv_rounding:   # integer arithmetic of tracker_vit.cpp::crop_image
+            x, y, w, h = (int(v) for v in (x, y, w, h))
+            crop_sz = math.ceil(math.sqrt(w * h) * factor)
+            x1 = x + int((w - crop_sz) / 2)      # C++ int division truncates toward zero
+            y1 = y + int((h - crop_sz) / 2)
+        else:
+            crop_sz = math.ceil(math.sqrt(w * h) * factor)
+            x1 = round(x + 0.5 * w - 0.5 * crop_sz)
+            y1 = round(y + 0.5 * h - 0.5 * crop_sz)
+        if crop_sz < 1:
+            raise ValueError(f"vittrack: box {tuple(box)} is too small to crop")
+        return crop_square(image, x1, y1, crop_sz, crop_sz), x1, y1, crop_sz
+
+    def initialize(self, image: np.ndarray, box: Box) -> None:
+        if not box.is_valid:
+            raise ValueError(f"vittrack: the initial box must have a positive finite size, got {box}")
+        b = box.as_array()
+        if self.params.opencv_rounding:
+            b = np.floor(b)
+        patch, _, _, _ = self._crop(image, b, self.params.template_factor)
+        self._template = to_blob(patch, 128, self.params.normalisation)
+        self._box = b
+
+    def track(self, image: np.ndarray, prior: tuple[float, float] | None = None) -> TrackerOutput:
+        if self._box is None:
+            raise RuntimeError("vittrack: track() called before initialize()")
+        p = self.params
+        x, y, w, h = self._box
+        region = self._box.copy()
+        if prior is not None:
+            region[0], region[1] = prior[0] - w / 2.0, prior[1] - h / 2.0
+            if p.opencv_rounding:
+                region = np.floor(region)
+        patch, x1, y1, crop_sz = self._crop(image, region, p.search_factor)
+        out = self._net()({"template": self._template, "search": to_blob(patch, 256, p.normalisation)})
+        score = np.asarray(out["output1"], dtype=np.float32).reshape(_FEAT, _FEAT)
+        size = np.asarray(out["output2"], dtype=np.float32).reshape(2, _FEAT, _FEAT)
+        offset = np.asarray(out["output3"], dtype=np.float32).reshape(2, _FEAT, _FEAT)
+        weighted = score * self._hann
+        iy, ix = np.unravel_index(int(np.argmax(weighted)), weighted.shape)
+        tracking_score = float(weighted[iy, ix])
+        if tracking_score >= p.score_threshold:
+            cx = (ix + offset[0, iy, ix]) / _FEAT
+            cy = (iy + offset[1, iy, ix]) / _FEAT
+            bw, bh = size[0, iy, ix], size[1, iy, ix]
+            nb = np.array([(cx - bw / 2) * crop_sz + x1, (cy - bh / 2) * crop_sz + y1,
+                           bw * crop_sz, bh * crop_sz], dtype=np.float64)
+            if p.opencv_rounding:
+                nb = np.floor(nb)
+            if nb[2] >= 1 and nb[3] >= 1 and np.all(np.isfinite(nb)):
+                self._box = nb
+            elif prior is not None:
+                self._box = region
+        elif prior is not None:
+            self._box = region   # nothing found: keep the estimator's proposal as our state
+        confidence = map_window_score(score, p.window_alpha) if float(score.max()) > 0 else 0.0
+        return TrackerOutput(
+            box=Box.from_array(self._box),
+            confidence=float(np.clip(confidence, 0.0, 1.0)),
+            score_map=score,
+            extra={"peak": float(score.max()), "tracking_score": tracking_score,
+                   "found": float(tracking_score >= p.score_threshold)},
+        )
+
+
+@hookimpl
+def mata_eval_trackers():
+    return [VitTrack]
