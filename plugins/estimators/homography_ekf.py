@@ -91,19 +91,26 @@ class HomographyEKF:
         p0_a: float = param(1e4, "initial variance of the centre acceleration ((px/s^2)^2)")
         p0_j: float = param(1e5, "initial variance of the centre jerk ((px/s^3)^2)")
 
+        def __post_init__(self) -> None:
+            """Checks beyond the declared types (run when the experiment file is loaded)."""
+            for key in ("r_h_floor", "q_h", "p0_h"):
+                v = getattr(self, key)
+                if len(v) != 9 or not all(np.isfinite(v)) or min(v) < 0:
+                    raise ValueError(f"homography_ekf: `{key}` must be 9 non-negative numbers "
+                                     f"(row-major h11..h33), got {v!r}")
+            if min(self.r_h_floor) <= 0:
+                raise ValueError(f"homography_ekf: `r_h_floor` must be positive, got {self.r_h_floor!r}")
+            if not 0.0 < self.alpha_ewma <= 1.0:
+                raise ValueError(f"homography_ekf: `alpha_ewma` must be in (0, 1], got {self.alpha_ewma}")
+            for key in ("r_box", "history_s"):
+                if not getattr(self, key) > 0:
+                    raise ValueError(f"homography_ekf: `{key}` must be positive, got {getattr(self, key)}")
+            for key in ("q_box", "q_v", "q_a", "q_j", "p0_box", "p0_v", "p0_a", "p0_j", "tau_sigma"):
+                if not getattr(self, key) >= 0:
+                    raise ValueError(f"homography_ekf: `{key}` must be >= 0, got {getattr(self, key)}")
+
     def __init__(self, params: Params | None = None):
         self.params = p = params if params is not None else self.Params()
-        for key in ("r_h_floor", "q_h", "p0_h"):
-            v = getattr(p, key)
-            if len(v) != 9 or not all(np.isfinite(v)) or min(v) < 0:
-                raise ValueError(f"homography_ekf: `{key}` must be 9 non-negative numbers "
-                                 f"(row-major h11..h33), got {v!r}")
-        if min(p.r_h_floor) <= 0:
-            raise ValueError(f"homography_ekf: `r_h_floor` must be positive, got {p.r_h_floor!r}")
-        if not 0.0 < p.alpha_ewma <= 1.0:
-            raise ValueError(f"homography_ekf: `alpha_ewma` must be in (0, 1], got {p.alpha_ewma}")
-        if p.r_box <= 0:
-            raise ValueError(f"homography_ekf: `r_box` must be positive, got {p.r_box}")
         self.n_deriv = N_DERIV[p.model]
         h_q = np.asarray(p.q_h, float) if p.camera else np.zeros(9)
         h_p0 = np.asarray(p.p0_h, float) if p.camera else np.zeros(9)
