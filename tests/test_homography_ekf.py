@@ -215,7 +215,8 @@ def test_invalid_or_degenerate_motion_does_not_raise_and_holds_h():
     h_before = est.state.x[em.HOM].copy()
     bad = [Motion.invalid(), Motion(np.full((3, 3), np.nan)), Motion(np.zeros((3, 3))),
            Motion(np.eye(3), np.full((9, 9), np.inf)), Motion(np.ones((2, 2))),
-           Motion(np.array([[1.0, 0, 0], [0, 1, 0], [-1.0, 0, 1]]))]  # maps the box behind the camera
+           Motion(np.array([[1.0, 0, 0], [0, 1, 0], [-1.0, 0, 1]])),  # maps the box behind the camera
+           Motion(np.diag([1e300, 1e300, 1.0]))]  # finite but overflows the prediction
     for k, m in enumerate(bad, start=2):
         e = est.step(k * DT, [Stamped(m, k * DT, k * DT)])
         assert e.box.is_valid

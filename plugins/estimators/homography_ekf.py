@@ -203,6 +203,8 @@ class HomographyEKF:
             x, P = self._update_motion(x, P, motions)
         for det in sorted(tick.detections, key=lambda s: s.t_capture):
             x, P, ewma = self._update_detection(x, P, ewma, det.value)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            return tick.before  # numerically degenerate input (e.g. an absurd H): hold, never NaN
         return FilterState(x, P, ewma)
 
     # --- measurements -----------------------------------------------------------------------------
