@@ -4,7 +4,7 @@
     <root>/anno/UAV123/<seq>.txt                     x,y,w,h per frame, NaN rows when absent
     <root>/anno/UAV123/att/<seq>.txt                 12 flags, order of ATTRIBUTE_ORDER.txt
 
-(``UAV20L``: ``anno/UAV20L/``; ``UAV123_10fps``: ``data_seq/UAV123_10fps/``,
+(``UAV20L``: ``anno/UAV20L/``, frames shared with UAV123 in ``data_seq/UAV123/``; ``UAV123_10fps``: ``data_seq/UAV123_10fps/``,
 ``anno/UAV123_10fps/``.) Sequences are frame ranges of the videos, from the benchmark kit's
 ``configSeqs.m`` table (or got10k's ``uav123.json``), which is read from the user's dataset folder.
 Listing sequences reads annotations only; frames are read by ``Sequence.image(k)``.
@@ -42,7 +42,8 @@ class _UAV123Layout:
     """Shared loader; subclasses fix the subset folder, the configSeqs table and the fps."""
 
     name = ""
-    subset = "UAV123"
+    subset = "UAV123"  # anno/<subset>/ and the configSeqs table seq<subset>
+    frames_subset = "UAV123"  # data_seq/<frames_subset>/
     fps = 30.0
 
     @dataclass(frozen=True)
@@ -68,7 +69,7 @@ class _UAV123Layout:
 
     @property
     def frames_dir(self) -> Path:
-        return self.root / "data_seq" / self.subset
+        return self.root / "data_seq" / self.frames_subset
 
     def frame_range_file(self) -> Path:
         """The frame-range table in use: ``frame_ranges`` or the first candidate found."""
@@ -169,12 +170,14 @@ class UAV123_10fps(_UAV123Layout):
 
     name = "uav123_10fps"
     subset = "UAV123_10fps"
+    frames_subset = "UAV123_10fps"
     fps = 10.0
 
 
 class UAV20L(_UAV123Layout):
-    """UAV20L: the 20 long-term UAV123 videos, whole (anno/UAV20L), 30 fps."""
+    """UAV20L: the 20 long-term UAV123 videos, whole (anno/UAV20L, frames in data_seq/UAV123), 30 fps."""
 
     name = "uav20l"
     subset = "UAV20L"
+    frames_subset = "UAV123"  # configSeqs' seqUAV20L points into data_seq/UAV123
     fps = 30.0
