@@ -87,13 +87,17 @@ def main(argv: list[str] | None = None) -> int:
     def plugin_tick():
         tick[0] += 1
         t = tick[0] * DT
-        est.step(t, [Stamped(Motion(H, cov), t, t)], [Stamped(TrackerOutput(Box(300.0, 200.0, 40.0, 30.0), 0.9), t, t)])
+        det = TrackerOutput(Box(300.0, 200.0, 40.0, 30.0), 0.9)
+        est.step(t, [Stamped(Motion(H, cov), t, t)], [Stamped(det, t, t)])
 
-    rows = [("predict + update, F given", best_us(ours_algebra, args.n, args.repeat), best_us(fpy_algebra, args.n, args.repeat)),
-            ("predict + update with f(x), Jacobian", best_us(ours_full, args.n, args.repeat), best_us(fpy_full, args.n, args.repeat))]
+    def us(fn):
+        return best_us(fn, args.n, args.repeat)
+
+    rows = [("predict + update, F given", us(ours_algebra), us(fpy_algebra)),
+            ("predict + update with f(x), Jacobian", us(ours_full), us(fpy_full))]
     for name, ours, theirs in rows:
         print(f"{name:40s} ours {ours:7.1f} us   filterpy {theirs:7.1f} us   ratio filterpy/ours {theirs / ours:5.2f}")
-    full = best_us(plugin_tick, args.n, args.repeat)
+    full = us(plugin_tick)
     print(f"{'plugin tick (H + predict + box update)':40s} ours {full:7.1f} us   "
           f"= {1e6 / full:,.0f} ticks/s (a 30 Hz estimator uses {full * 30 / 1e4:.3f} % of a core)")
     return 0

@@ -95,7 +95,7 @@ def _close(a_x, a_P, b_x, b_P, rtol=1e-9):
     assert np.all(np.abs(a_P - b_P) <= rtol * scale), (np.abs(a_P - b_P) / scale).max()
 
 
-@pytest.mark.parametrize("model", ["cv", "ca"])
+@pytest.mark.parametrize("model", ["cv", "ca", "cj"])
 def test_every_step_matches_filterpy(model):
     """Seeded run: each H update, predict and corner update of the plugin equals filterpy's
     ExtendedKalmanFilter given the same F, Q, H, R (relative 1e-9)."""

@@ -68,18 +68,27 @@ class HomographyEKF:
 
     @dataclass(frozen=True)
     class Params:
-        model: Literal["cv", "ca", "cj"] = param("cv", "dynamic model of the box centre: constant velocity (paper), acceleration or jerk")
-        camera: bool = param(True, "use block B's homography; false = no camera compensation (H forced to identity)")
-        gating: bool = param(True, "reject measurements by the thresholds below; false = use every measurement")
-        alpha_ewma: float = param(0.3, "EWMA smoothing factor of the tracker confidence (paper eq. ewma_score)")
+        model: Literal["cv", "ca", "cj"] = param(
+            "cv", "dynamic model of the box centre: constant velocity (paper), acceleration or jerk")
+        camera: bool = param(
+            True, "use block B's homography; false = no camera compensation (H forced to identity)")
+        gating: bool = param(
+            True, "reject measurements by the thresholds below; false = use every measurement")
+        alpha_ewma: float = param(
+            0.3, "EWMA smoothing factor of the tracker confidence (paper eq. ewma_score)")
         tau_ewma: float = param(0.25, "reject the tracker's box while the confidence EWMA is below this")
-        tau_diff: float = param(0.25, "reject the tracker's box when its confidence is this far below the EWMA")
-        tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
-        delay: Literal["ignore", "compensate"] = param("ignore", "delayed measurements: apply on arrival (paper) or at their capture time")
+        tau_diff: float = param(
+            0.25, "reject the tracker's box when its confidence is this far below the EWMA")
+        tau_sigma: float = param(
+            2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
+        delay: Literal["ignore", "compensate"] = param(
+            "ignore", "delayed measurements: apply on arrival (paper) or at their capture time")
         history_s: float = param(2.0, "seconds of state history kept for delay: compensate")
-        h_update: Literal["before_predict", "after_predict"] = param("before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
+        h_update: Literal["before_predict", "after_predict"] = param(
+            "before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
         r_box: float = param(4.0, "variance (px^2) of each measured corner coordinate (fixed, paper)")
-        r_h_floor: list[float] = param(_R_H_FLOOR, "per-entry floor of the homography measurement variance (9 values, row-major)")
+        r_h_floor: list[float] = param(
+            _R_H_FLOOR, "per-entry floor of the homography measurement variance (9 values, row-major)")
         q_box: float = param(30.0, "process noise of each corner coordinate (px^2 per second)")
         q_h: list[float] = param(_Q_H, "process noise of the homography entries (9 values, per second)")
         q_v: float = param(1e3, "process noise of the centre velocity ((px/s)^2 per second)")
