@@ -114,7 +114,9 @@ def test_uav123_10fps_official_layout_with_real_frames(shared_data, uav_anno, tm
     anno.mkdir(parents=True)
     shutil.copy(src / "groundtruth_rect.txt", anno / "wakeboard7.txt")
     shutil.copy(uav_anno / "configSeqs.m", tmp_path / "configSeqs.m")  # found under root
-    (seq,) = make(UAV123_10fps, root=str(tmp_path)).sequences()
+    with pytest.raises(DatasetError, match="no annotation file for 122 UAV123_10fps sequence"):
+        make(UAV123_10fps, root=str(tmp_path)).sequences()
+    (seq,) = make(UAV123_10fps, root=str(tmp_path), sequences=["wakeboard7"]).sequences()
     assert (seq.name, len(seq), seq.fps) == ("wakeboard7", 67, 10.0)
     assert seq.attributes == frozenset()  # no att/ folder here
     ref = cv2.imread(str(src / "img" / "000067.jpg"))
@@ -196,3 +198,23 @@ def test_uavdt_annotations_match_the_papers_attribute_counts(shared_data, tmp_pa
     s0101 = next(s for s in seqs if s.name == "S0101")
     assert s0101.groundtruth[0].tolist() == [622, 348, 190, 191]
     assert s0101.frame_paths[0].endswith("UAV-benchmark-S/S0101/img000001.jpg")
+
+
+def test_scoring_published_dtb70_results_needs_annotations_only(shared_data, tmp_path, monkeypatch):
+    """SiamAPN++ results scored through the DTB70 loader reproduce its authors' published
+    DTB70 numbers (success AUC 0.594, precision 0.790), and no image is read."""
+    import zipfile
+
+    from mata_eval.evaluate import evaluate_results
+
+    with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
+        z.extractall(tmp_path, members=[n for n in z.namelist() if "/SiamAPN++/" in n])
+    (results,) = list(tmp_path.rglob("SiamAPN++"))
+    reads = []
+    monkeypatch.setattr(cv2, "imread", lambda *a, **k: reads.append(a))
+    seqs = make(DTB70, root=str(tmp_path / "no_frames"), annotations=str(shared_data / "annotations/DTB70")).sequences()
+    overall = evaluate_results(results, seqs).summary.overall
+    assert overall.n_sequences == 70
+    assert overall.msr == pytest.approx(0.594, abs=0.001)
+    assert overall.precision20 == pytest.approx(0.790, abs=0.0015)
+    assert reads == []

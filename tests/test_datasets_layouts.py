@@ -135,6 +135,13 @@ def test_missing_frame_range_table_says_what_and_where(uav_root):
         make(UAV123, root=str(uav_root), frame_ranges=str(uav_root / "nope.m")).sequences()
 
 
+def test_table_sequence_without_annotation_is_an_error(uav_root):
+    (uav_root / "anno/UAV123/boat1.txt").unlink()
+    with pytest.raises(DatasetError, match=r"no annotation file for 1 UAV123 sequence.*boat1\.txt"):
+        make(UAV123, root=str(uav_root)).sequences()
+    assert [s.name for s in make(UAV123, root=str(uav_root), sequences=["car1_2"]).sequences()] == ["car1_2"]
+
+
 def test_ground_truth_length_must_match_the_frame_range(uav_root):
     write_gt(uav_root / "anno/UAV123/boat1.txt", boxes(4))
     with pytest.raises(DatasetError, match=r"boat1\.txt: 4 ground-truth lines.*1\.\.3"):

@@ -110,24 +110,20 @@ class _UAV123Layout:
                       if p.is_file() and p.stem not in ("ATTRIBUTE_ORDER", "README") and not p.stem.startswith("README"))
 
     def sequence_names(self) -> list[str]:
-        """Table sequences whose annotation exists, in table order, then annotation files that no
-        table mentions (neither as a sequence nor as a video it splits): those are whole videos."""
+        """Table sequences in table order, then annotation files that no table mentions (neither
+        as a sequence nor as a video it splits): those are whole videos."""
         return self._names(*self.frame_table())
 
     def _names(self, table: dict[str, FrameRange], mentioned: set[str]) -> list[str]:
         have = set(self._annotation_names())
-        missing = [n for n in table if n not in have]
-        if missing and len(missing) == len(table):
-            raise DatasetError(f"{self.anno_dir}: none of the {len(table)} {self.subset} sequences of the "
-                               f"frame-range table has an annotation file <seq>.txt (e.g. {missing[0]}.txt)")
-        listed = [n for n in table if n in have]
+        wanted = table if self.params.sequences is None else [n for n in self.params.sequences if n in table]
+        missing = [n for n in wanted if n not in have]
+        if missing:
+            raise DatasetError(f"{self.anno_dir}: no annotation file for {len(missing)} {self.subset} sequence(s) "
+                               f"of the frame-range table: {', '.join(missing[:5])}{', ...' if len(missing) > 5 else ''} "
+                               f"(expected {missing[0]}.txt; select a subset with sequences: [...])")
         extra = [n for n in sorted(have) if n not in mentioned]
-        if missing and self.params.sequences is not None:
-            absent = [n for n in self.params.sequences if n in missing]
-            if absent:
-                raise DatasetError(f"{self.anno_dir}: no annotation file for {', '.join(absent)} "
-                                   f"(expected {absent[0]}.txt)")
-        return select(listed + extra, self.params.sequences, f"dataset {self.name} ({self.anno_dir})")
+        return select(list(table) + extra, self.params.sequences, f"dataset {self.name} ({self.anno_dir})")
 
     def sequences(self) -> list[Sequence]:
         table, mentioned = self.frame_table()
