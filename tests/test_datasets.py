@@ -127,7 +127,7 @@ def test_uav123_10fps_official_layout_with_real_frames(shared_data, uav_anno, tm
 def test_json_has_no_10fps_table(uav_anno, tmp_path):
     (tmp_path / "anno" / "UAV123_10fps").mkdir(parents=True)
     ds = make(UAV123_10fps, root=str(tmp_path), frame_ranges=str(uav_anno / "got10k_uav123_frame_ranges.json"))
-    with pytest.raises(DatasetError, match="no table for UAV123_10fps.*configSeqs.m"):
+    with pytest.raises(DatasetError, match="no seqUAV123_10fps table.*JSON has no UAV123_10fps.*configSeqs.m"):
         ds.sequences()
 
 

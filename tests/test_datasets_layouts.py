@@ -124,6 +124,22 @@ def test_uav123_10fps_fps_is_10(uav_root):
     assert (s.fps, len(s), int(s.image(1)[0, 0, 0])) == (10.0, 2, 2)
 
 
+def test_first_frame_range_file_with_the_table_wins(uav_root):
+    import json
+
+    (uav_root / "uav123.json").write_text(json.dumps({"UAV123": {"boat1": {
+        "start_frame": 1, "end_frame": 3, "folder_name": "boat1"}}}))
+    write_frames(uav_root / "data_seq/UAV123_10fps/car1", 3)
+    write_gt(uav_root / "anno/UAV123_10fps/car1_1.txt", boxes(2))
+    (uav_root / "util/configSeqs.m").rename(uav_root / "anno/UAV123_10fps/configSeqs.m")
+    # <root>/uav123.json is found first but has no UAV123_10fps table: the configSeqs.m next to
+    # the annotations is used
+    (s,) = make(UAV123_10fps, root=str(uav_root)).sequences()
+    assert (s.name, len(s)) == ("car1_1", 2)
+    # UAV123 takes the JSON's table (boat1); files it does not mention are whole videos
+    assert [s.name for s in make(UAV123, root=str(uav_root), sequences=["boat1"]).sequences()] == ["boat1"]
+
+
 def test_missing_frame_range_table_says_what_and_where(uav_root):
     (uav_root / "util/configSeqs.m").unlink()
     with pytest.raises(DatasetError) as e:

@@ -71,34 +71,34 @@ class _UAV123Layout:
     def frames_dir(self) -> Path:
         return self.root / "data_seq" / self.frames_subset
 
-    def frame_range_file(self) -> Path:
-        """The frame-range table in use: ``frame_ranges`` or the first candidate found."""
+    def frame_range_files(self) -> list[Path]:
+        """``frame_ranges``, or every candidate file found under root / next to the annotations."""
         if self.params.frame_ranges:
             path = Path(self.params.frame_ranges).expanduser()
             if not path.is_file():
                 raise DatasetError(f"frame_ranges: file not found: {path}. "
                                    + _frame_range_help(self.subset, [path]))
-            return path
-        tried = []
-        for base in dict.fromkeys([self.root, self.anno_dir, self.anno_dir.parent]):
-            for rel in FRAME_RANGE_CANDIDATES:
-                p = base / rel
-                tried.append(p)
-                if p.is_file():
-                    return p
-        raise DatasetError(_frame_range_help(self.subset, tried))
+            return [path]
+        tried = [base / rel for base in dict.fromkeys([self.root, self.anno_dir, self.anno_dir.parent])
+                 for rel in FRAME_RANGE_CANDIDATES]
+        found = [p for p in dict.fromkeys(tried) if p.is_file()]
+        if not found:
+            raise DatasetError(_frame_range_help(self.subset, tried))
+        return found
 
     def frame_table(self) -> tuple[dict[str, FrameRange], set[str]]:
-        """This subset's table, and every sequence or video name any table of the file mentions."""
-        path = self.frame_range_file()
-        tables = read_frame_ranges(path)
-        if self.subset not in tables:
-            raise DatasetError(f"{path}: no table for {self.subset} (found: {', '.join(tables)}). "
-                               + ("got10k's JSON has no UAV123_10fps table; use the benchmark kit's configSeqs.m. "
-                                  if path.suffix == ".json" else "")
-                               + _frame_range_help(self.subset, [path]))
-        mentioned = {n for t in tables.values() for r in t.values() for n in (r.name, r.video)}
-        return tables[self.subset], mentioned
+        """This subset's table (from the first file that has one), and every sequence or video
+        name any table of that file mentions."""
+        files = self.frame_range_files()
+        for path in files:
+            tables = read_frame_ranges(path)
+            if self.subset in tables:
+                mentioned = {n for t in tables.values() for r in t.values() for n in (r.name, r.video)}
+                return tables[self.subset], mentioned
+        json_note = ("got10k's JSON has no UAV123_10fps table; use the benchmark kit's configSeqs.m. "
+                     if any(p.suffix == ".json" for p in files) and self.subset == "UAV123_10fps" else "")
+        raise DatasetError(f"no seq{self.subset} table in {', '.join(map(str, files))}. " + json_note
+                           + _frame_range_help(self.subset, files))
 
     # -- listing --
     def _annotation_names(self) -> list[str]:
