@@ -1,0 +1,74 @@
+"""NanoTrack v2 in PyTorch: the published checkpoint loads strictly (weights only), and the
+network reproduces the published ONNX pair (an independent artefact of the same weights) on
+random crops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+ort = pytest.importorskip("onnxruntime")
+
+from mata_eval_plugins.trackers import nanotrack_torch as nt  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def paths(shared_data):
+    return {"pth": shared_data / "models/nanotrack/pth/nanotrackv2.pth",
+            "backbone": shared_data / "models/nanotrack/v2/nanotrack_backbone_sim.onnx",
+            "head": shared_data / "models/nanotrack/v2/nanotrack_head_sim.onnx"}
+
+
+def test_architecture_matches_checkpoint_keys_and_shapes(paths):
+    sd = nt.read_checkpoint(paths["pth"])
+    assert len(sd) == 298
+    own = nt.NanoTrackV2().state_dict()
+    assert set(own) == set(sd)
+    assert all(own[k].shape == sd[k].shape for k in own)
+
+
+def test_plain_weights_only_load_refuses_the_numpy_pickle(paths):
+    # The reason the loader allows numpy scalars/dtypes explicitly: a bare weights_only load fails.
+    import pickle
+
+    with pytest.raises(pickle.UnpicklingError):
+        torch.load(paths["pth"], map_location="cpu", weights_only=True)
+
+
+def test_outputs_equal_the_published_onnx_pair(paths):
+    from mata_eval_plugins.trackers.nanotrack import relaxed_copy
+
+    model = nt.load_nanotrack_v2(paths["pth"])
+    backbone = ort.InferenceSession(str(relaxed_copy(paths["backbone"])), providers=["CPUExecutionProvider"])
+    head = ort.InferenceSession(str(paths["head"]), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    for _ in range(2):
+        z = rng.uniform(0, 255, (1, 3, 127, 127)).astype(np.float32)
+        x = rng.uniform(0, 255, (1, 3, 255, 255)).astype(np.float32)
+        with torch.no_grad():
+            zf, xf = model.backbone(torch.from_numpy(z)), model.backbone(torch.from_numpy(x))
+            cls, loc = model.ban_head(zf, xf)
+        ozf = backbone.run(None, {"input": z})[0]
+        oxf = backbone.run(None, {"input": x})[0]
+        assert ozf.shape == (1, 48, 8, 8) and oxf.shape == (1, 48, 16, 16)
+        np.testing.assert_allclose(zf.numpy(), ozf, atol=1e-4, rtol=1e-4)
+        np.testing.assert_allclose(xf.numpy(), oxf, atol=1e-4, rtol=1e-4)
+        ocls, oloc = head.run(["output1", "output2"], {"input1": ozf, "input2": oxf})
+        np.testing.assert_allclose(cls.numpy(), ocls, atol=1e-4, rtol=1e-4)
+        np.testing.assert_allclose(loc.numpy(), oloc, atol=1e-3, rtol=1e-4)   # exp(): values up to ~60
+
+
+def test_wrong_file_is_named(tmp_path):
+    bad = tmp_path / "other.pth"
+    torch.save({"state_dict": {"backbone.features.0.0.weight": torch.zeros(1)}}, bad)
+    with pytest.raises(ValueError, match="other.pth is not a NanoTrack v2 checkpoint"):
+        nt.load_nanotrack_v2(bad)
+    with pytest.raises(FileNotFoundError, match="missing.pth"):
+        nt.load_nanotrack_v2(tmp_path / "missing.pth")
+
+
+def test_random_weights_are_seeded():
+    a = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
+    b = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
