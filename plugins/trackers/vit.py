@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import pickle
+import re
 import types
 from dataclasses import dataclass
 from pathlib import Path
@@ -505,6 +506,14 @@ _lenient_pickle.Unpickler = _LenientUnpickler  # type: ignore[attr-defined]
 _lenient_pickle.load = lambda f, **kw: _LenientUnpickler(f, **kw).load()  # type: ignore[attr-defined]
 
 
+def _first_line(e: BaseException) -> str:
+    """The informative part of a torch.load error (its unpickler detail, else the first line)."""
+    text = str(e).strip()
+    detail = re.search(r"WeightsUnpickler error:\s*(.+)", text)
+    line = detail.group(1).strip() if detail else (text.splitlines()[0] if text else "")
+    return f"{type(e).__name__}: {line}"[:300]
+
+
 def read_state_dict(path: str | Path, official: OfficialCheckpoint, trust_pickle: bool = False) -> dict:
     """The ``state_dict`` of a checkpoint file: a trainer dict ``{'net': state_dict, ...}`` (as the
     upstream trainers write it) or a bare state_dict.
@@ -523,14 +532,18 @@ def read_state_dict(path: str | Path, official: OfficialCheckpoint, trust_pickle
         else:
             obj = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        found = re.search(r"Unsupported global: GLOBAL (\S+)", str(e))
+        if not found:  # e.g. a truncated or foreign file
+            raise CheckpointError(
+                f"{path}: not a readable torch checkpoint ({_first_line(e)}). Expected the official "
+                f"'{official.file_name}' for {official.model}, published at {official.source}.") from e
         raise CheckpointError(
-            f"{path}: weights-only loading refused this file, it holds pickled Python objects "
-            f"besides tensors ({first}). If you trust it (e.g. the official '{official.file_name}' "
+            f"{path}: weights-only loading refused this file, it pickles Python objects besides "
+            f"tensors (first: {found.group(1)}). If you trust it (e.g. the official '{official.file_name}' "
             f"from {official.source}), set the tracker parameter trust_pickle: true.") from e
     except Exception as e:  # corrupt or not a torch file
         raise CheckpointError(
-            f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e}). Expected the official "
+            f"{path}: not a readable torch checkpoint ({_first_line(e)}). Expected the official "
             f"'{official.file_name}' for {official.model}, published at {official.source}.") from e
     if isinstance(obj, Mapping) and "net" in obj:
         sd = obj["net"]

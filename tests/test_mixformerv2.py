@@ -1,0 +1,424 @@
+"""MixFormerV2 in PyTorch: the official state_dict layout (MODELS.md 1.7, every key and shape, the
+published parameter counts), checkpoint loading (strict, safe by default), the template key/value
+cache against the full forward, PMF window confidence on hand-built PMFs, score-gated template
+update on hand-computed timelines, the MATA prior and the BGR -> RGB preprocessing."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import types
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from mata_eval.types import Box  # noqa: E402
+from mata_eval_plugins.trackers import vit  # noqa: E402
+from mata_eval_plugins.trackers.mixformerv2 import (  # noqa: E402
+    CheckpointNotFound,
+    MixFormerV2,
+    TemplateSchedule,
+)
+
+TINY = vit.MixFormerV2Config(template_size=32, search_size=64, depth=2, mlp_ratio=2.0, embed_dim=32,
+                             num_heads=2, feat_sz=16)
+
+
+def documented_layout(ls: int, lt: int, depth: int, r: int, d: int = 768, n: int = 96) -> dict:
+    """Key -> shape, written from MODELS.md 1.7 (independently of the model code)."""
+    e = {"backbone.pos_embed_s": (1, ls, d), "backbone.pos_embed_t": (1, lt, d),
+         "backbone.reg_tokens": (1, 4, d), "backbone.pos_embed_reg": (1, 4, d),
+         "backbone.patch_embed.proj.weight": (d, 3, 16, 16), "backbone.patch_embed.proj.bias": (d,)}
+    for i in range(depth):
+        b = f"backbone.blocks.{i}."
+        e.update({b + "norm1.weight": (d,), b + "norm1.bias": (d,),
+                  b + "attn.qkv.weight": (3 * d, d), b + "attn.qkv.bias": (3 * d,),
+                  b + "attn.proj.weight": (d, d), b + "attn.proj.bias": (d,),
+                  b + "norm2.weight": (d,), b + "norm2.bias": (d,),
+                  b + "mlp.fc1.weight": (d * r, d), b + "mlp.fc1.bias": (d * r,),
+                  b + "mlp.fc2.weight": (d, d * r), b + "mlp.fc2.bias": (d,)})
+    e.update({"box_head.layers.0.0.weight": (d, d), "box_head.layers.0.0.bias": (d,),
+              "box_head.layers.0.1.weight": (d,), "box_head.layers.0.1.bias": (d,),
+              "box_head.layers.1.0.weight": (n, d), "box_head.layers.1.0.bias": (n,),
+              "box_head.layers.1.1.weight": (n,), "box_head.layers.1.1.bias": (n,),
+              "score_head.layers.0.0.weight": (d, d), "score_head.layers.0.0.bias": (d,),
+              "score_head.layers.1.weight": (1, d), "score_head.layers.1.bias": (1,)})
+    return e
+
+
+@pytest.mark.parametrize("cfg, ls, lt, depth, r, n_keys, n_params", [
+    (vit.MIXFORMERV2_S, 196, 49, 4, 1, 66, 16_228_897),
+    (vit.MIXFORMERV2_B, 324, 64, 8, 4, 114, 58_855_201),
+])
+def test_state_dict_matches_official_layout(cfg, ls, lt, depth, r, n_keys, n_params):
+    with torch.device("meta"):  # shapes only, nothing computed
+        net = vit.MixFormerV2Net(cfg)
+    got = {k: tuple(v.shape) for k, v in net.state_dict().items()}
+    assert got == documented_layout(ls, lt, depth, r)
+    assert len(got) == n_keys
+    assert sum(p.numel() for p in net.parameters()) == n_params  # MODELS.md 1.1, measured upstream
+
+
+def _inputs(seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(1, 3, 32, 32, generator=g), torch.randn(1, 3, 32, 32, generator=g),
+            torch.randn(1, 3, 64, 64, generator=g))
+
+
+def _tiny(seed: int = 0) -> "vit.MixFormerV2Net":
+    torch.manual_seed(seed)
+    return vit.MixFormerV2Net(TINY).eval()
+
+
+def test_forward_shapes_pmfs_and_box_is_the_expectation():
+    net = _tiny()
+    with torch.no_grad():
+        box, logit, pmfs = net(*_inputs())
+    assert box.shape == (1, 4) and logit.shape == (1,) and pmfs.shape == (1, 4, TINY.feat_sz)
+    p = pmfs[0].double().numpy()
+    assert np.all(p >= 0) and np.allclose(p.sum(axis=1), 1.0, atol=1e-6)
+    # MODELS.md 1.3: side = sum_j p_j j / N (bins at j * stride, crop side N * stride)
+    left, top, right, bottom = (p * np.arange(TINY.feat_sz)).sum(axis=1) / TINY.feat_sz
+    expected = [(left + right) / 2, (top + bottom) / 2, right - left, bottom - top]
+    np.testing.assert_allclose(box[0].double().numpy(), expected, atol=1e-6)
+
+
+def test_template_cache_equals_full_forward():
+    net = _tiny(3)
+    z, oz, x = _inputs(1)
+    with torch.no_grad():
+        full = net(z, oz, x)
+        cached = net.forward_search(x, net.encode_templates(z, oz))
+        other = net(z, torch.zeros_like(oz), x)  # the online template matters
+    for a, b in zip(full, cached):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-6)
+    assert not torch.allclose(full[2], other[2])
+
+
+def test_template_features_ignore_the_search_region():
+    """Asymmetric attention: the template tokens' keys/values at every block do not depend on
+    the search image, so the cache is exact (MODELS.md 1.2). Checked through the full forward:
+    two searches that differ give the same outputs as their own cached passes."""
+    net = _tiny(4)
+    z, oz, x = _inputs(2)
+    cache = net.encode_templates(z, oz)
+    with torch.no_grad():
+        for xs in (x, torch.flip(x, dims=[3]), x * 0.5):
+            for a, b in zip(net(z, oz, xs), net.forward_search(xs, cache)):
+                torch.testing.assert_close(a, b, rtol=0, atol=1e-6)
+
+
+def _documented_small_checkpoint(seed: int = 0) -> dict:
+    g = torch.Generator().manual_seed(seed)
+    return {k: torch.randn(s, generator=g) * 0.02 for k, s in documented_layout(196, 49, 4, 1).items()}
+
+
+def test_official_small_layout_loads_strictly_through_the_tracker(tmp_path):
+    sd = _documented_small_checkpoint()
+    path = tmp_path / "mixformerv2_small.pth.tar"
+    torch.save({"epoch": 500, "net_type": "MixFormer", "net": sd, "optimizer": None}, path)
+    trk = MixFormerV2(MixFormerV2.Params(variant="S", checkpoint=str(tmp_path)))  # a folder works
+    net = trk.network()
+    own = net.state_dict()
+    assert set(own) == set(sd)
+    for k in sd:
+        assert torch.equal(own[k], sd[k]), k
+    img = np.full((240, 320, 3), 90, np.uint8)
+    trk.initialize(img, Box(140, 100, 30, 24))
+    out = trk.track(img)
+    assert out.pmfs.shape == (4, 96) and np.isfinite(out.box.as_array()).all()
+
+
+def test_checkpoint_round_trip_tiny(tmp_path):
+    a, b = _tiny(0), _tiny(1)
+    path = tmp_path / "tiny.pth.tar"
+    torch.save({"net": a.state_dict(), "epoch": 1, "constructor": None}, path)
+    x = _inputs(5)
+    with torch.no_grad():
+        assert not torch.allclose(a(*x)[2], b(*x)[2])
+        vit.load_checkpoint(b, path, vit.OfficialCheckpoint("tiny", "tiny.pth.tar", "here"))
+        for u, v in zip(a(*x), b(*x)):
+            assert torch.equal(u, v)
+    bare = tmp_path / "bare.pth"
+    torch.save(a.state_dict(), bare)  # a bare state_dict is accepted too
+    c = _tiny(2)
+    vit.load_checkpoint(c, bare, vit.OfficialCheckpoint("tiny", "tiny.pth.tar", "here"))
+    assert all(torch.equal(c.state_dict()[k], v) for k, v in a.state_dict().items())
+
+
+def test_wrong_variant_is_named(tmp_path):
+    path = tmp_path / "mixformerv2_small.pth.tar"
+    torch.save({"net": _documented_small_checkpoint()}, path)
+    trk = MixFormerV2(MixFormerV2.Params(variant="B", checkpoint=str(path)))
+    with pytest.raises(vit.CheckpointError) as e:
+        trk.network()
+    msg = str(e.value)
+    assert "mixformerv2_base.pth.tar" in msg and "MixFormerV2-B" in msg
+    assert "backbone.pos_embed_s: file (1, 196, 768) vs model (1, 324, 768)" in msg
+    assert "missing key(s)" in msg  # blocks 4..7
+
+
+def test_missing_checkpoint_names_file_and_source(tmp_path, monkeypatch):
+    monkeypatch.delenv("MATA_MIXFORMERV2_S", raising=False)
+    with pytest.raises(CheckpointNotFound, match=r"mixformerv2_small\.pth\.tar.*MCG-NJU/MixFormerV2"):
+        MixFormerV2(MixFormerV2.Params(variant="S"))
+    monkeypatch.setenv("MATA_MIXFORMERV2_B", str(tmp_path / "nowhere.pth.tar"))
+    with pytest.raises(CheckpointNotFound, match=r"nowhere\.pth\.tar.*\$MATA_MIXFORMERV2_B.*mixformerv2_base"):
+        MixFormerV2(MixFormerV2.Params(variant="B"))
+
+
+def test_legacy_pickle_needs_explicit_trust(tmp_path):
+    """A trainer checkpoint that pickles its settings object (a class of the upstream trainer,
+    not importable here) is refused by default and loads with trust_pickle."""
+    mod = types.ModuleType("lib_train_admin_fake")
+
+    class Settings:
+        def __init__(self):
+            self.env = {"workspace": "/x"}
+
+    Settings.__module__ = mod.__name__
+    Settings.__qualname__ = "Settings"
+    mod.Settings = Settings
+    sys.modules[mod.__name__] = mod
+    try:
+        a = _tiny(0)
+        path = tmp_path / "legacy.pth.tar"
+        torch.save({"net": a.state_dict(), "settings": Settings()}, path)
+    finally:
+        del sys.modules[mod.__name__]
+    official = vit.OfficialCheckpoint("tiny", "tiny.pth.tar", "https://example.org/weights")
+    b = _tiny(1)
+    with pytest.raises(vit.CheckpointError, match=r"legacy\.pth\.tar.*trust_pickle: true"):
+        vit.load_checkpoint(b, path, official)
+    vit.load_checkpoint(b, path, official, trust_pickle=True)
+    assert all(torch.equal(b.state_dict()[k], v) for k, v in a.state_dict().items())
+
+
+def test_not_a_checkpoint(tmp_path):
+    path = tmp_path / "junk.pth.tar"
+    path.write_bytes(b"not a torch file")
+    with pytest.raises(vit.CheckpointError, match=r"junk\.pth\.tar.*not a readable torch checkpoint.*small"):
+        vit.load_checkpoint(_tiny(), path, vit.OfficialCheckpoint("S", "mixformerv2_small.pth.tar", "src"))
+    torch.save({"net": [1, 2, 3]}, path)
+    with pytest.raises(vit.CheckpointError, match="expected a trainer checkpoint"):
+        vit.load_checkpoint(_tiny(), path, vit.OfficialCheckpoint("S", "mixformerv2_small.pth.tar", "src"))
+
+
+# ------------------------------------------------------------------------------------------
+# confidence and template update, through the tracker with a scripted network
+
+
+N = 16
+
+
+class ScriptedNet(torch.nn.Module):
+    """Returns hand-built PMFs / score logits and records each installed online template."""
+
+    def __init__(self, outputs):
+        super().__init__()
+        self.cfg = vit.MixFormerV2Config(template_size=32, search_size=64, depth=1, embed_dim=8,
+                                         num_heads=1, feat_sz=N)
+        self.outputs = list(outputs)
+        self.installed: list[float] = []
+
+    def encode_templates(self, z, oz):
+        self.installed.append(float(oz[0, 0, 0, 0]))
+        return []
+
+    def forward_search(self, x, cache):
+        pmfs, logit = self.outputs.pop(0)
+        box = torch.tensor([[0.5, 0.5, 0.2, 0.2]])
+        return box, torch.tensor([float(logit)]), torch.tensor(np.asarray(pmfs), dtype=torch.float64)[None]
+
+
+def _delta(k: int) -> np.ndarray:
+    p = np.zeros(N)
+    p[k] = 1.0
+    return p
+
+
+def _run(outputs, images=None, **params):
+    net = ScriptedNet(outputs)
+    trk = MixFormerV2(MixFormerV2.Params(**params), network=net)
+    images = images or [np.full((200, 200, 3), 40, np.uint8)] * (len(outputs) + 1)
+    trk.initialize(images[0], Box(90, 90, 20, 20))
+    return net, [trk.track(im) for im in images[1:]]
+
+
+def test_window_confidence_on_hand_built_pmfs():
+    uniform = np.full(N, 1.0 / N)
+    two_modes = np.zeros(N)
+    two_modes[[3, 11]] = 0.5
+    edge = np.zeros(N)
+    edge[:3] = (0.5, 0.3, 0.2)
+    edge_right = edge[::-1].copy()
+    wide = np.zeros(N)
+    wide[6:11] = 0.2  # mode at bin 6 (first of the ties), window 5..7 holds 0.4
+    cases = [
+        ([_delta(8)] * 4, 1.0),                                   # delta
+        ([uniform] * 4, 2.0 / N),                                 # uniform: argmax 0, truncated window
+        ([two_modes, _delta(2), _delta(5), _delta(9)], 0.5),      # two equal modes -> 1/2, min over sides
+        ([_delta(1), edge, _delta(4), _delta(7)], 0.8),           # peak at the left edge, truncated
+        ([_delta(1), _delta(2), edge_right, _delta(7)], 0.8),     # peak at the right edge
+        ([_delta(1), _delta(2), _delta(3), wide], 0.4),
+    ]
+    # N = 16 bins: alpha = 0.125 gives 2 round(0.125 * 16 / 2) + 1 = 3 bins, the width the
+    # paper's alpha = 0.03 gives for N = 96 (checked in the next test)
+    _, outs = _run([(pmfs, 0.0) for pmfs, _ in cases], window_alpha=0.125, template_update="none")
+    for out, (pmfs, expected) in zip(outs, cases):
+        assert out.confidence == pytest.approx(expected, abs=1e-9)
+        assert out.extra["window_score"] == pytest.approx(expected, abs=1e-9)
+        assert out.extra["mlp_score"] == pytest.approx(0.5)
+        np.testing.assert_allclose(out.pmfs, np.asarray(pmfs), atol=1e-12)
+
+
+def test_paper_alpha_window_is_three_bins_of_96():
+    global N
+    p = np.zeros(96)
+    p[[40, 41, 42, 43]] = (0.1, 0.5, 0.3, 0.1)  # mode 41, bins 40..42 -> 0.9
+    old, N = N, 96
+    try:
+        _, outs = _run([([p, _delta(3), _delta(5), _delta(9)], 0.0)], template_update="none")
+    finally:
+        N = old
+    assert outs[0].confidence == pytest.approx(0.9)
+
+
+def test_mlp_confidence_is_the_sigmoid_score():
+    _, outs = _run([([_delta(3)] * 4, math.log(3.0))], confidence="mlp", template_update="none")
+    assert outs[0].confidence == pytest.approx(0.75)
+    assert outs[0].extra["window_score"] == pytest.approx(1.0)
+
+
+def _pixel(v: int) -> float:
+    """Normalised R channel of a grey level, as the template tensor holds it."""
+    return (v / 255.0 - 0.485) / 0.229
+
+
+def test_threshold_update_timeline():
+    scores = [0.4, 0.6, 0.5, 0.9]  # tau 0.5: updates at frames 2 and 4 (strictly above)
+    images = [np.full((200, 200, 3), 10 * (k + 1), np.uint8) for k in range(5)]
+    net, outs = _run([([_delta(2)] * 4, math.log(s / (1 - s))) for s in scores], images=images,
+                     confidence="mlp", tau_template=0.5, template_update="threshold")
+    assert [o.extra["template_updated"] for o in outs] == [0.0, 1.0, 0.0, 1.0]
+    # installed: initial template (frame 0), then the crops of frames 2 and 4
+    assert net.installed == pytest.approx([_pixel(10), _pixel(30), _pixel(50)], abs=1e-5)
+
+
+def test_interval_update_timeline():
+    """Upstream policy: keep the best crop above tau within each interval, install it every
+    `update_interval` frames, fall back to the initial template when none qualified."""
+    scores = [0.6, 0.8, 0.7, 0.4, 0.3, 0.2, 0.9]
+    images = [np.full((200, 200, 3), 10 * (k + 1), np.uint8) for k in range(len(scores) + 1)]
+    net, outs = _run([([_delta(2)] * 4, math.log(s / (1 - s))) for s in scores], images=images,
+                     confidence="mlp", tau_template=0.5, template_update="interval", update_interval=3)
+    assert [o.extra["template_updated"] for o in outs] == [0, 0, 1, 0, 0, 1, 0]
+    # frame 3 installs frame 2's crop (best 0.8); frame 6 has no candidate -> initial template
+    assert net.installed == pytest.approx([_pixel(10), _pixel(30), _pixel(10)], abs=1e-5)
+
+
+def test_schedule_none_and_validation():
+    s = TemplateSchedule("none", 0.0)
+    assert [s.step(1.0) for _ in range(3)] == [(False, False)] * 3
+    with pytest.raises(ValueError, match="update_interval"):
+        TemplateSchedule("interval", 0.5, 0)
+    with pytest.raises(ValueError, match="template_update"):
+        TemplateSchedule("sometimes", 0.5)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------
+# the tracker with a tiny random network: prior, RGB, shapes
+
+
+def _tracker(**params) -> MixFormerV2:
+    return MixFormerV2(MixFormerV2.Params(**params), network=_tiny(7))
+
+
+def test_track_outputs_and_prior_centres_the_search_region():
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (400, 400, 3), dtype=np.uint8)
+    box = Box(100, 100, 10, 10)  # crop side ceil(10 * 4.5) = 45 px
+    trk = _tracker()
+    trk.initialize(img, box)
+    out = trk.track(img)
+    assert out.pmfs.shape == (4, TINY.feat_sz)
+    np.testing.assert_allclose(out.pmfs.sum(axis=1), 1.0, atol=1e-6)
+    assert 0.0 < out.confidence <= 1.0 and 0.0 < out.extra["mlp_score"] < 1.0
+    assert math.dist(out.box.center, box.center) <= 45 / 2 + 1
+    trk = _tracker()
+    trk.initialize(img, box)
+    out = trk.track(img, prior=(300.0, 250.0))  # the MATA feedback moves the search region
+    assert math.dist(out.box.center, (300.0, 250.0)) <= 45 / 2 + 1
+
+
+def test_cached_and_full_trackers_agree():
+    rng = np.random.default_rng(1)
+    frames = [rng.integers(0, 255, (160, 160, 3), dtype=np.uint8) for _ in range(4)]
+    outs = []
+    for cache in (True, False):
+        trk = _tracker(template_cache=cache, tau_template=0.0)  # update on every frame
+        trk.initialize(frames[0], Box(60, 60, 20, 20))
+        outs.append([trk.track(f) for f in frames[1:]])
+    for a, b in zip(*outs):
+        np.testing.assert_allclose(a.box.as_array(), b.box.as_array(), atol=1e-3)
+        np.testing.assert_allclose(a.pmfs, b.pmfs, atol=1e-5)
+        assert a.extra["template_updated"] == b.extra["template_updated"] == 1.0
+
+
+def test_preprocessing_is_rgb_imagenet():
+    blue = np.zeros((4, 4, 3), np.uint8)
+    blue[..., 0] = 255  # BGR: pure blue
+    x = vit.image_to_tensor(blue)
+    assert x.shape == (1, 3, 4, 4)
+    np.testing.assert_allclose(x[0, :, 0, 0].numpy(), [(0 - 0.485) / 0.229, (0 - 0.456) / 0.224,
+                                                       (1 - 0.406) / 0.225], rtol=1e-6)
+
+
+def test_bad_input():
+    trk = _tracker()
+    with pytest.raises(RuntimeError, match="before initialize"):
+        trk.track(np.zeros((50, 50, 3), np.uint8))
+    with pytest.raises(ValueError, match="uint8"):
+        trk.initialize(np.zeros((50, 50), np.uint8), Box(1, 1, 5, 5))
+    with pytest.raises(ValueError, match="positive size"):
+        trk.initialize(np.zeros((50, 50, 3), np.uint8), Box(1, 1, 0, 5))
+    with pytest.raises(ValueError, match="variant"):
+        MixFormerV2(MixFormerV2.Params(variant="L"), network=_tiny())  # type: ignore[arg-type]
+
+
+def test_sincos_position_embedding():
+    pe = vit.sincos_pos_embed_2d(8, 3)  # 9 tokens, channels: [sin(x w), cos(x w), sin(y w), cos(y w)]
+    w = np.array([1.0, 0.01])
+    for r in range(3):
+        for c in range(3):
+            expected = np.r_[np.sin(c * w), np.cos(c * w), np.sin(r * w), np.cos(r * w)]
+            np.testing.assert_allclose(pe[r * 3 + c], expected, atol=1e-7)
+
+
+def test_modules_import_without_torch():
+    code = (
+        "import sys\n"
+        "class NoTorch:\n"
+        "    def find_spec(self, name, path, target=None):\n"
+        "        if name == 'torch' or name.startswith('torch.'):\n"
+        "            raise ImportError('torch blocked')\n"
+        "sys.meta_path.insert(0, NoTorch())\n"
+        "from mata_eval.params import describe\n"
+        "from mata_eval_plugins.trackers import mixformerv2, ostrack\n"
+        "print(mixformerv2.mata_eval_trackers()[0].name, ostrack.mata_eval_trackers()[0].name,\n"
+        "      len(describe(mixformerv2.MixFormerV2.Params)))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split()[:2] == ["mixformerv2", "ostrack"]
+
+
+def test_registry_sees_both_plugins():
+    from mata_eval.registry import load_registry
+
+    reg = load_registry()
+    assert {"mixformerv2", "ostrack"} <= set(reg.plugins["tracker"])
+    assert not [f for f in reg.failures if f.entry_point in ("mixformerv2", "ostrack")]
