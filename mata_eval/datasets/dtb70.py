@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..hooks import hookimpl
 from ..params import param
 from ..sequence import Sequence
 from .annotations import (DatasetError, annotation_files, list_images, read_attribute_flags, read_boxes,
@@ -86,3 +87,8 @@ class DTB70:
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, attributes=attrs,
                                 frame_paths=frames))
         return out
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [DTB70]

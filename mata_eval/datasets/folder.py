@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..hooks import hookimpl
 from ..params import param
 from ..sequence import Sequence
 from .annotations import DatasetError, MissingFrames, list_images, read_boxes, select
@@ -71,3 +72,8 @@ class FolderDataset:
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, frame_paths=tuple(frames),
                                 loader=None if frames else MissingFrames(name, cands)))
         return out
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [FolderDataset]

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..hooks import hookimpl
 from ..params import param
 from ..sequence import Sequence
 from .annotations import (DatasetError, FrameRange, list_images, read_attribute_flags, read_boxes,
@@ -177,3 +178,8 @@ class UAV20L(_UAV123Layout):
     subset = "UAV20L"
     frames_subset = "UAV123"  # configSeqs' seqUAV20L points into data_seq/UAV123
     fps = 30.0
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [UAV123, UAV123_10fps, UAV20L]

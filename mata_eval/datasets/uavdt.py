@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..hooks import hookimpl
 from ..params import param
 from ..sequence import Sequence
 from .annotations import DatasetError, list_images, read_attribute_flags, read_boxes, select
@@ -86,3 +87,8 @@ class UAVDT:
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, attributes=attrs,
                                 frame_paths=frames))
         return out
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [UAVDT]

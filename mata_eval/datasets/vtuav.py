@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..hooks import hookimpl
 from ..params import param
 from ..sequence import Sequence
 from .annotations import AnnotationError, DatasetError, MissingFrames, list_images, read_boxes, select
@@ -83,3 +84,8 @@ class VTUAV:
         return Sequence(name=name, groundtruth=gt, fps=self.params.fps, frame_paths=tuple(frames),
                         loader=None if frames else MissingFrames(name, [folder]), annotated=mask,
                         meta={"annotation_step": step})
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [VTUAV]
