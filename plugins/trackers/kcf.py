@@ -7,9 +7,11 @@ a local contrast normalisation) plus the cell's mean intensity. Scale is searche
 scales per frame (the usual KCF scale extension). OpenCV 5 ships no KCF (contrib is not
 installed), so it is written here with numpy FFTs; every step is vectorised.
 
-Confidence: the peak-to-sidelobe ratio (PSR, Bolme et al. 2010) of the response map mapped
-linearly to [0, 1]; it drops under occlusion and loss, and the model is not updated while it is
-below ``update_threshold`` (so an occluder does not overwrite the target's appearance).
+Confidence in [0, 1]: the peak-to-sidelobe ratio (PSR, Bolme et al. 2010) of the response map
+mapped linearly to [0, 1], times the response peak relative to its running mean over confident
+frames (capped at 1). PSR alone stays high when the target leaves a window whose static
+background still matches; the relative peak catches that. The model is not updated while the
+confidence is below ``update_threshold`` (so an occluder does not overwrite the target).
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
 _N_ORIENT = 9
+_NORM_EPS = 1e-2
+_COLOUR_GAIN = 1.0
 
 
 def hog_like_features(gray: np.ndarray, cell: int) -> np.ndarray:
@@ -49,9 +53,24 @@ def hog_like_features(gray: np.ndarray, cell: int) -> np.ndarray:
     pooled = bins[:, :ch * cell, :cw * cell].reshape(_N_ORIENT, ch, cell, cw, cell).sum(axis=(2, 4))
     energy = (pooled ** 2).sum(axis=0)
     local = cv2.boxFilter(energy, -1, (3, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
-    hog = np.minimum(pooled / np.sqrt(local + 1e-6)[None], 0.2)
+    hog = np.minimum(pooled / np.sqrt(local + _NORM_EPS * cell ** 4)[None], 0.2)
     intensity = gray[:ch * cell, :cw * cell].reshape(ch, cell, cw, cell).mean(axis=(1, 3)) - 0.5
     return np.concatenate([hog, intensity[None].astype(np.float32)], axis=0)
+
+
+def patch_features(patch: np.ndarray, cell: int, colour: bool) -> np.ndarray:
+    """HOG-like channels of the patch's gray level, plus (``colour``, BGR input) the cell means
+    of the CIELab a and b channels centred on 0 (chromaticity, robust to illumination)."""
+    if patch.ndim == 2:
+        return hog_like_features(patch.astype(np.float32) * (1.0 / 255.0), cell)
+    gray = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY).astype(np.float32) * (1.0 / 255.0)
+    feats = hog_like_features(gray, cell)
+    if not colour:
+        return feats
+    lab = cv2.cvtColor(patch, cv2.COLOR_BGR2Lab)[..., 1:].astype(np.float32) * (_COLOUR_GAIN / 255.0) - 0.5 * _COLOUR_GAIN
+    ch, cw = feats.shape[1:]
+    ab = lab[:ch * cell, :cw * cell].reshape(ch, cell, cw, cell, 2).mean(axis=(1, 3)).transpose(2, 0, 1)
+    return np.concatenate([feats, ab], axis=0)
 
 
 def gaussian_correlation(xf: np.ndarray, yf: np.ndarray, sigma: float) -> np.ndarray:
@@ -94,7 +113,7 @@ class KCFTracker:
 
     @dataclass(frozen=True)
     class Params:
-        padding: float = param(2.5, "extra context: window side = (1 + padding) x target side")
+        padding: float = param(2.0, "extra context: window side = (1 + padding) x target side")
         template_size: int = param(96, "larger side of the resampled window, pixels")
         cell_size: int = param(4, "HOG cell size, pixels of the resampled window")
         kernel_sigma: float = param(0.5, "Gaussian kernel bandwidth (KCF sigma)")
@@ -102,11 +121,12 @@ class KCFTracker:
         output_sigma_factor: float = param(0.1, "label bandwidth relative to the target size")
         learning_rate: float = param(0.02, "model interpolation factor per frame")
         scale_step: float = param(1.05, "ratio between the three searched scales")
-        scale_penalty: float = param(0.95, "weight of the off-centre scales' peaks")
+        scale_penalty: float = param(0.97, "weight of the off-centre scales' peaks")
         psr_low: float = param(5.0, "PSR mapped to confidence 0")
         psr_high: float = param(15.0, "PSR mapped to confidence 1")
         update_threshold: float = param(0.25, "no model update below this confidence")
         min_size: float = param(4.0, "smallest allowed box side, pixels")
+        colour: bool = param(True, "add CIELab a/b cell means to the HOG-like features (colour input)")
 
     def __init__(self, params: "KCFTracker.Params | None" = None):
         self.params = params or self.Params()
@@ -151,8 +171,6 @@ class KCFTracker:
             xa, xb = min(max(x0, 0), W - 1), min(max(x0, 0), W - 1) + 1
             ya, yb = min(max(y0, 0), H - 1), min(max(y0, 0), H - 1) + 1
         roi = image[ya:yb, xa:xb]
-        if roi.ndim == 3:
-            roi = cv2.cvtColor(roi, cv2.COLOR_BGR2GRAY)
         pads = (ya - y0, y0 + wh - yb, xa - x0, x0 + ww - xb)
         if any(v > 0 for v in pads):
             t, b, l, r = (max(0, v) for v in pads)
@@ -160,8 +178,8 @@ class KCFTracker:
             roi = roi[:wh, :ww] if roi.shape[0] >= wh and roi.shape[1] >= ww else cv2.resize(roi, (ww, wh))
         ph, pw = self._patch
         interp = cv2.INTER_AREA if ww > pw else cv2.INTER_LINEAR
-        patch = cv2.resize(roi, (pw, ph), interpolation=interp).astype(np.float32) * (1.0 / 255.0)
-        feats = hog_like_features(patch, self.params.cell_size)
+        patch = cv2.resize(roi, (pw, ph), interpolation=interp)
+        feats = patch_features(patch, self.params.cell_size, self.params.colour)
         return feats * self._cos[None], (x0, y0, ww, wh)
 
     # --- learning ---------------------------------------------------------------------------
@@ -189,6 +207,7 @@ class KCFTracker:
         self._setup(box.w, box.h)
         feats, _ = self._window(image, self._cx, self._cy, self._w, self._h)
         self._train(feats, 1.0)
+        self._peak_ref: float | None = None     # running mean of the response peak
         self._ready = True
 
     def track(self, image: np.ndarray, prior: tuple[float, float] | None = None) -> TrackerOutput:
@@ -223,16 +242,22 @@ class KCFTracker:
         new_h = float(np.clip(self._h * scale, p.min_size, H))
 
         psr = peak_to_sidelobe(resp, (iy, ix), self._exclude)
-        confidence = float(np.clip((psr - p.psr_low) / (p.psr_high - p.psr_low), 0.0, 1.0))
+        peak = float(resp[iy, ix])
+        sharpness = float(np.clip((psr - p.psr_low) / (p.psr_high - p.psr_low), 0.0, 1.0))
+        if self._peak_ref is None:
+            self._peak_ref = max(peak, 1e-6)
+        relative_peak = float(np.clip(peak / self._peak_ref, 0.0, 1.0))
+        confidence = sharpness * relative_peak
         self._cx, self._cy, self._w, self._h = new_cx, new_cy, new_w, new_h
         if confidence >= p.update_threshold:
+            self._peak_ref = 0.9 * self._peak_ref + 0.1 * peak
             feats, _ = self._window(image, new_cx, new_cy, new_w, new_h)
             self._train(feats, p.learning_rate)
         return TrackerOutput(
             box=Box.from_center(new_cx, new_cy, new_w, new_h),
             confidence=confidence,
             score_map=np.fft.fftshift(resp).astype(np.float32),
-            extra={"psr": psr, "peak": float(resp[iy, ix]), "scale": float(scale)},
+            extra={"psr": psr, "peak": peak, "relative_peak": relative_peak, "scale": float(scale)},
         )
 
 
