@@ -607,15 +607,24 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
                 specs: list[SequenceSpec] | None = None, progress: bool = False,
                 overwrite: bool = False) -> list[str]:
     """Generate a suite into ``root`` in the UAV123 layout, atomically: everything is written
-    into a temporary sibling folder that is renamed to ``root`` when complete (with
-    ``synth.json``, the generation parameters, written last). Returns the sequence names."""
+    into a temporary sibling folder that is renamed to ``root`` when complete (``synth.json``,
+    the generation parameters, inside). A crash leaves no half suite at ``root``. Returns the
+    sequence names. Raises FileExistsError when ``root`` already holds something (a suite, unless
+    ``overwrite``; anything else, always), also when another process completed it meanwhile."""
     root = Path(root)
-    specs = specs if specs is not None else suite_specs(n_sequences, n_frames, width, height, seed)
+    suite = None
+    if specs is None:
+        specs = suite_specs(n_sequences, n_frames, width, height, seed)
+        suite = {"n_sequences": n_sequences, "n_frames": n_frames, "width": width, "height": height,
+                 "seed": seed}
+    names = [sp.name for sp in specs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"sequence names must be unique, got {names}")
     if (root / SUITE_MARKER).exists() and not overwrite:
         raise FileExistsError(f"{root} already holds a synthetic suite ({SUITE_MARKER}); "
-                              "choose another folder or overwrite it")
+                              "choose another folder or overwrite it (--force)")
     if root.exists() and any(root.iterdir()) and not (root / SUITE_MARKER).exists():
-        raise FileExistsError(f"{root} exists and is not empty; refusing to replace it")
+        raise FileExistsError(f"{root} exists and is not empty (and is not a synthetic suite); refusing to replace it")
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = root.parent / f".{root.name}.tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir()
@@ -627,16 +636,34 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
         write_config_seqs(tmp, [(sp.name, sp.n_frames) for sp in specs])
         (tmp / SUITE_MARKER).write_text(json.dumps({
             "generator_version": GENERATOR_VERSION,
+            "suite": suite,
             "sequences": [dataclasses.asdict(sp) for sp in specs],
             "attributes": {sp.name: sorted(r.attributes) for sp, r in zip(specs, results)},
         }, indent=1))
         if root.exists():
-            shutil.rmtree(root)
-        os.replace(tmp, root)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return [sp.name for sp in specs]
+            if (root / SUITE_MARKER).exists() and not overwrite:
+                raise FileExistsError(f"{root}: another process completed a suite meanwhile")
+            if (root / SUITE_MARKER).exists() or not any(root.iterdir()):
+                shutil.rmtree(root)
+        try:
+            os.replace(tmp, root)
+        except OSError:
+            raise FileExistsError(f"{root}: appeared while generating (another process?)") from None
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return names
+
+
+def read_suite_info(root: str | Path) -> dict | None:
+    """The generation parameters of a complete suite at ``root`` (``synth.json``), or None."""
+    path = Path(root) / SUITE_MARKER
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno}); delete the folder to regenerate") from None
 
 
 def _map(fn, tasks: list, jobs: int, progress: bool) -> list:

@@ -1,0 +1,108 @@
+"""The built-in synthetic UAV suite (:mod:`mata_eval.synth`) as a dataset plugin.
+
+The suite is generated on first use into a cache folder keyed by its generation parameters
+(atomically: a crash never leaves a half suite that looks complete), then read through the
+official-layout loader :class:`mata_eval.datasets.uav123.UAV123`, exactly as a real UAV123 copy
+would be. Each sequence's true inter-frame homographies are in ``meta["homographies"]``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..hooks import hookimpl
+from ..params import param
+from ..sequence import Sequence
+from .annotations import DatasetError
+
+
+def cache_root() -> Path:
+    """``$MATA_EVAL_CACHE`` or ``~/.cache/mata-eval``."""
+    env = os.environ.get("MATA_EVAL_CACHE")
+    return Path(env).expanduser() if env else Path.home() / ".cache" / "mata-eval"
+
+
+class SyntheticDataset:
+    """Synthetic UAV sequences with exact ego-motion (generated on first use, then cached)."""
+
+    name = "synthetic"
+
+    @dataclass(frozen=True)
+    class Params:
+        root: str | None = param(None, "suite folder (default: $MATA_EVAL_CACHE or ~/.cache/mata-eval, "
+                                       "synthetic/<hash of the generation parameters>)")
+        n_sequences: int = param(20, "number of sequences")
+        n_frames: int = param(300, "frames per sequence (30 fps)")
+        width: int = param(1280, "frame width in pixels")
+        height: int = param(720, "frame height in pixels")
+        seed: int = param(0, "generation seed: same seed, same pixels, names and attributes")
+        sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
+        jobs: int = param(2, "worker processes used to generate the suite")
+
+    def __init__(self, params: Params):
+        self.params = params
+        p = params
+        for key in ("n_sequences", "n_frames", "width", "height", "jobs"):
+            if getattr(p, key) < 1:
+                raise DatasetError(f"dataset synthetic: {key} must be >= 1, got {getattr(p, key)}")
+
+    @property
+    def generation(self) -> dict:
+        p = self.params
+        return {"n_sequences": p.n_sequences, "n_frames": p.n_frames, "width": p.width, "height": p.height,
+                "seed": p.seed}
+
+    @property
+    def root(self) -> Path:
+        if self.params.root:
+            return Path(self.params.root).expanduser()
+        from ..synth import GENERATOR_VERSION
+
+        key = json.dumps({**self.generation, "version": GENERATOR_VERSION}, sort_keys=True)
+        return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
+
+    def ensure(self) -> Path:
+        """Generate the suite at :attr:`root` unless a complete one is there; returns the root."""
+        from ..synth import read_suite_info, write_suite
+
+        root = self.root
+        info = read_suite_info(root)
+        if info is None:
+            try:
+                write_suite(root, **self.generation, jobs=self.params.jobs)
+            except FileExistsError:
+                info = read_suite_info(root)  # another process finished first: use its suite
+                if info is None:
+                    raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; "
+                                       "choose another root") from None
+            info = read_suite_info(root)
+        suite = (info or {}).get("suite")
+        if suite is not None and suite != self.generation:
+            diff = ", ".join(f"{k}={suite.get(k)!r} (asked {v!r})" for k, v in self.generation.items()
+                             if suite.get(k) != v)
+            raise DatasetError(f"dataset synthetic: {root} holds a suite generated with other parameters: {diff}; "
+                               "use another root or the matching parameters")
+        return root
+
+    def sequences(self) -> list[Sequence]:
+        import dataclasses
+
+        from ..synth import load_true_homographies
+        from .uav123 import UAV123
+
+        root = self.ensure()
+        reader = UAV123(UAV123.Params(root=str(root), sequences=self.params.sequences))
+        out = []
+        for seq in reader.sequences():
+            meta = {**seq.meta, "homographies": load_true_homographies(root, seq.name), "synthetic": True}
+            out.append(dataclasses.replace(seq, meta=meta))
+        return out
+
+
+@hookimpl
+def mata_eval_datasets() -> list[type]:
+    return [SyntheticDataset]
