@@ -1,0 +1,207 @@
+"""VitTrack and NanoTrack through ONNX Runtime: model-file errors, the ONNX shape relaxation,
+parity with cv2.TrackerVit / cv2.TrackerNano on real frames, confidence range, and the MATA
+prior moving the search region (real data: skipped without ../shared/data)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mata_eval.types import Box
+from mata_eval_plugins.trackers import nanotrack as nano_mod
+from mata_eval_plugins.trackers.model_files import ModelFileNotFound, resolve_model
+from mata_eval_plugins.trackers.nanotrack import NanoTrack, relax_spatial_dims
+from mata_eval_plugins.trackers.vittrack import VitTrack, blob_scale
+
+pytest.importorskip("onnxruntime")
+
+
+# --- helpers --------------------------------------------------------------------------------
+
+def load_sequence(folder: Path, limit: int):
+    """First ``limit`` BGR frames and x, y, w, h ground truth (VOT polygons -> min/max box)."""
+    name = "groundtruth_rect.txt" if (folder / "groundtruth_rect.txt").is_file() else "groundtruth.txt"
+    rows = [[float(v) for v in line.replace("\t", ",").split(",") if v]
+            for line in (folder / name).read_text().splitlines() if line.strip()]
+    gt = np.array(rows[:limit])
+    if gt.shape[1] == 8:
+        xs, ys = gt[:, 0::2], gt[:, 1::2]
+        gt = np.stack([xs.min(1), ys.min(1), xs.max(1) - xs.min(1), ys.max(1) - ys.min(1)], axis=1)
+    img_dir = next(d for d in (folder / "img", folder / "imgs") if d.is_dir())
+    frames = [cv2.imread(str(p)) for p in sorted(img_dir.glob("*.jpg"))[:limit]]
+    return frames, gt
+
+
+def iou_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    x1, y1 = np.maximum(a[:, 0], b[:, 0]), np.maximum(a[:, 1], b[:, 1])
+    x2 = np.minimum(a[:, 0] + a[:, 2], b[:, 0] + b[:, 2])
+    y2 = np.minimum(a[:, 1] + a[:, 3], b[:, 1] + b[:, 3])
+    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    return inter / (a[:, 2] * a[:, 3] + b[:, 2] * b[:, 3] - inter)
+
+
+def run_pair(ours, ref, frames, init):
+    ours.initialize(frames[0], Box.from_array(init))
+    ref.init(frames[0], tuple(int(v) for v in init))
+    a, b, last, outs = [], [], np.asarray(init, float), []
+    for f in frames[1:]:
+        out = ours.track(f)
+        ok, box = ref.update(f)
+        last = np.asarray(box, float) if ok else last
+        a.append(out.box.as_array())
+        b.append(last)
+        outs.append(out)
+    return np.array(a), np.array(b), outs
+
+
+def cv2_vit(shared):
+    params = cv2.TrackerVit_Params()
+    params.net = str(shared / "models/vittrack/object_tracking_vittrack_2023sep.onnx")
+    return cv2.TrackerVit_create(params)
+
+
+def cv2_nano(shared):
+    params = cv2.TrackerNano_Params()
+    params.backbone = str(shared / "models/nanotrack/v2/nanotrack_backbone_sim.onnx")
+    params.neckhead = str(shared / "models/nanotrack/v2/nanotrack_head_sim.onnx")
+    return cv2.TrackerNano_create(params)
+
+
+@pytest.fixture()
+def models(shared_data, monkeypatch):
+    monkeypatch.setenv("MATA_VITTRACK_ONNX", str(shared_data / "models/vittrack/object_tracking_vittrack_2023sep.onnx"))
+    monkeypatch.setenv("MATA_NANOTRACK_BACKBONE", str(shared_data / "models/nanotrack/v2/nanotrack_backbone_sim.onnx"))
+    monkeypatch.setenv("MATA_NANOTRACK_HEAD", str(shared_data / "models/nanotrack/v2/nanotrack_head_sim.onnx"))
+    return shared_data
+
+
+# --- without real data ----------------------------------------------------------------------
+
+def test_missing_model_names_file_and_source(tmp_path, monkeypatch):
+    with pytest.raises(ModelFileNotFound, match=r"object_tracking_vittrack_2023sep\.onnx.*opencv_zoo"):
+        VitTrack(VitTrack.Params(model=str(tmp_path / "nope.onnx")))
+    monkeypatch.setenv("MATA_NANOTRACK_BACKBONE", str(tmp_path / "missing_dir"))
+    with pytest.raises(ModelFileNotFound, match=r"nanotrack_backbone_sim\.onnx.*MATA_NANOTRACK_BACKBONE.*SiamTrackers"):
+        NanoTrack()
+    monkeypatch.delenv("MATA_NANOTRACK_BACKBONE")
+    monkeypatch.setenv("MATA_SHARED_DATA", str(tmp_path))          # nothing there either
+    with pytest.raises(ModelFileNotFound, match=r"nanotrack_backbone_sim\.onnx.*'backbone'"):
+        resolve_model("nanotrack_backbone", None)
+
+
+def test_opencv_blob_scale_is_the_quaternion_inverse():
+    # cv::Scalar's `double / Scalar` is conj(s) / |s|^2: for s = (a, b, c, 0) that is
+    # (a, -b, -c) / (a^2 + b^2 + c^2). Computed by hand for the ImageNet std:
+    mean, scale, swap = blob_scale("opencv")
+    n = 0.229 ** 2 + 0.224 ** 2 + 0.225 ** 2
+    assert scale == pytest.approx(np.array([0.229, -0.224, -0.225]) / n / 255.0, rel=1e-6)
+    assert mean == pytest.approx([123.675, 116.28, 103.53], rel=1e-6) and not swap
+    _, scale, swap = blob_scale("imagenet")
+    assert swap and scale == pytest.approx(1.0 / (255.0 * np.array([0.229, 0.224, 0.225])), rel=1e-6)
+
+
+def test_protobuf_relaxation_round_trip():
+    # Hand-built ModelProto: graph { input { name "input" type { tensor_type { elem_type 1
+    # shape { dim {dim_value 1} dim {dim_value 3} dim {dim_value 255} dim {dim_value 255} } } } } }
+    def ld(num, payload):
+        return nano_mod._enc_varint((num << 3) | 2) + nano_mod._enc_varint(len(payload)) + payload
+
+    def vint(num, v):
+        return nano_mod._enc_varint(num << 3) + nano_mod._enc_varint(v)
+
+    dims = b"".join(ld(1, vint(1, d)) for d in (1, 3, 255, 255))
+    tensor = vint(1, 1) + ld(2, dims)
+    value_info = ld(1, b"input") + ld(2, ld(1, tensor))
+    model = vint(1, 8) + ld(7, ld(11, value_info) + ld(13, value_info))
+    relaxed = relax_spatial_dims(model)
+    top = nano_mod._fields(relaxed)
+    assert top[0] == (1, 0, b"\x08")                      # ir_version untouched
+    graph = nano_mod._fields(top[1][2])
+    assert [g[0] for g in graph] == [11]                   # value_info dropped
+    vi = nano_mod._fields(graph[0][2])
+    shape = nano_mod._fields(nano_mod._fields(nano_mod._fields(vi[1][2])[0][2])[1][2])
+    kinds = [nano_mod._fields(d[2])[0] for d in shape]
+    assert kinds[:2] == [(1, 0, b"\x01"), (1, 0, b"\x03")]
+    assert kinds[2] == (2, 2, b"in_2") and kinds[3] == (2, 2, b"in_3")
+    assert nano_mod._varint(nano_mod._enc_varint(300), 0) == (300, 2)
+
+
+# --- with real data -------------------------------------------------------------------------
+
+def test_relaxed_backbone_embeds_the_exemplar(models):
+    import onnxruntime as ort
+
+    path = nano_mod.relaxed_copy(resolve_model("nanotrack_backbone", None))
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    out = session.run(None, {"input": np.zeros((1, 3, 127, 127), np.float32)})[0]
+    assert out.shape == (1, 48, 8, 8)
+    net = cv2.dnn.readNet(str(resolve_model("nanotrack_backbone", None)))   # OpenCV reshapes itself
+    x = np.random.default_rng(0).uniform(0, 255, (1, 3, 127, 127)).astype(np.float32)
+    net.setInput(x)
+    ref = net.forward()
+    ours = session.run(None, {"input": x})[0]
+    assert np.abs(ours - ref).max() < 1e-3 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("seq,limit", [("uav123_10fps/wakeboard10", 60), ("vot15_bag", 40)])
+def test_vittrack_parity_with_opencv(models, seq, limit):
+    frames, gt = load_sequence(models / "sequences" / seq, limit)
+    ours, ref, outs = run_pair(VitTrack(), cv2_vit(models), frames, gt[0])
+    assert iou_rows(ours, ref).mean() >= 0.95
+    for out in outs:
+        assert 0.0 <= out.confidence <= 1.0 and out.score_map.shape == (16, 16)
+
+
+def test_vittrack_tracking_score_equals_opencv(models):
+    frames, gt = load_sequence(models / "sequences" / "vot15_bag", 3)
+    ours, ref = VitTrack(), cv2_vit(models)
+    ours.initialize(frames[0], Box.from_array(gt[0]))
+    ref.init(frames[0], tuple(int(v) for v in gt[0]))
+    for f in frames[1:]:
+        out = ours.track(f)
+        ref.update(f)
+        assert out.extra["tracking_score"] == pytest.approx(ref.getTrackingScore(), abs=1e-3)
+
+
+@pytest.mark.parametrize("seq,limit", [("uav123_10fps/wakeboard7", 40), ("otb_Couple", 40)])
+def test_nanotrack_parity_with_opencv(models, seq, limit):
+    frames, gt = load_sequence(models / "sequences" / seq, limit)
+    ours, ref, outs = run_pair(NanoTrack(), cv2_nano(models), frames, gt[0])
+    assert iou_rows(ours, ref).mean() >= 0.95
+    for out in outs:
+        assert 0.0 <= out.confidence <= 1.0 and out.score_map.shape == (16, 16)
+
+
+@pytest.mark.parametrize("cls", [VitTrack, NanoTrack])
+def test_prior_recovers_a_jump_beyond_the_search_region(models, cls):
+    """Translate frame 2 of wakeboard10 (a 10x9 px target, search region about 40 px) by
+    (+150, +90) px: without a prior the target is outside the search region; a prior at the
+    new place (a few px off) finds it."""
+    frames, gt = load_sequence(models / "sequences" / "uav123_10fps/wakeboard10", 3)
+    shift = np.array([150.0, 90.0])
+    moved = cv2.warpAffine(frames[2], np.float32([[1, 0, shift[0]], [0, 1, shift[1]]]),
+                           (frames[2].shape[1], frames[2].shape[0]), borderMode=cv2.BORDER_REFLECT)
+    truth = gt[2] + np.r_[shift, 0, 0]
+
+    def run(prior):
+        t = cls()
+        t.initialize(frames[0], Box.from_array(gt[0]))
+        t.track(frames[1])
+        return t.track(moved, prior=prior)
+
+    lost = run(None)
+    found = run((truth[0] + truth[2] / 2 + 3.0, truth[1] + truth[3] / 2 - 2.0))
+    assert iou_rows(lost.box.as_array()[None], truth[None])[0] == 0.0
+    assert iou_rows(found.box.as_array()[None], truth[None])[0] > 0.5
+    assert found.confidence > lost.confidence
+
+
+def test_registered(models):
+    from mata_eval.registry import load_registry
+
+    trackers = load_registry().plugins["tracker"]
+    assert trackers["vittrack"].cls is VitTrack and trackers["nanotrack"].cls is NanoTrack
