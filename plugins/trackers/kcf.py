@@ -31,12 +31,18 @@ _NORM_EPS = 1e-2
 _COLOUR_GAIN = 1.0
 
 
+def _cell_means(x: np.ndarray, cell: int) -> np.ndarray:
+    """Mean over non-overlapping ``cell`` x ``cell`` blocks of an (H, W[, C]) float32 array
+    (``cv2.resize`` with INTER_AREA is exactly the block mean for integer factors)."""
+    h, w = x.shape[0] // cell, x.shape[1] // cell
+    return cv2.resize(x[:h * cell, :w * cell], (w, h), interpolation=cv2.INTER_AREA)
+
+
 def hog_like_features(gray: np.ndarray, cell: int) -> np.ndarray:
     """(C, H/cell, W/cell) features of a float32 gray patch in [0, 1]: 9 orientation channels
-    (gradient magnitude soft-binned over [0, pi), summed per cell, divided by the gradient
+    (gradient magnitude soft-binned over [0, pi), averaged per cell, divided by the gradient
     energy of the 3x3 cell neighbourhood, clipped at 0.2) and the cell's mean intensity - 0.5."""
     h, w = gray.shape
-    ch, cw = h // cell, w // cell
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1)
     mag, ang = cv2.cartToPolar(gx, gy)
@@ -45,32 +51,29 @@ def hog_like_features(gray: np.ndarray, cell: int) -> np.ndarray:
     frac = (pos - lo).astype(np.float32)
     lo = lo.astype(np.int64) % _N_ORIENT
     hi = (lo + 1) % _N_ORIENT
-    bins = np.zeros((_N_ORIENT, h, w), dtype=np.float32)
-    flat = bins.reshape(_N_ORIENT, -1)
+    bins = np.zeros((h * w, _N_ORIENT), dtype=np.float32)
     idx = np.arange(h * w)
-    flat[lo.ravel(), idx] += (mag * (1.0 - frac)).ravel()
-    flat[hi.ravel(), idx] += (mag * frac).ravel()
-    pooled = bins[:, :ch * cell, :cw * cell].reshape(_N_ORIENT, ch, cell, cw, cell).sum(axis=(2, 4))
-    energy = (pooled ** 2).sum(axis=0)
+    bins[idx, lo.ravel()] += (mag * (1.0 - frac)).ravel()
+    bins[idx, hi.ravel()] += (mag * frac).ravel()
+    pooled = _cell_means(bins.reshape(h, w, _N_ORIENT), cell)            # (ch, cw, 9)
+    energy = np.einsum("ijk,ijk->ij", pooled, pooled)
     local = cv2.boxFilter(energy, -1, (3, 3), normalize=False, borderType=cv2.BORDER_REPLICATE)
-    hog = np.minimum(pooled / np.sqrt(local + _NORM_EPS * cell ** 4)[None], 0.2)
-    intensity = gray[:ch * cell, :cw * cell].reshape(ch, cell, cw, cell).mean(axis=(1, 3)) - 0.5
-    return np.concatenate([hog, intensity[None].astype(np.float32)], axis=0)
+    hog = np.minimum(pooled / np.sqrt(local + _NORM_EPS)[..., None], 0.2)
+    intensity = _cell_means(gray, cell) - 0.5
+    return np.concatenate([hog, intensity[..., None]], axis=2).transpose(2, 0, 1)
 
 
 def patch_features(patch: np.ndarray, cell: int, colour: bool) -> np.ndarray:
-    """HOG-like channels of the patch's gray level, plus (``colour``, BGR input) the cell means
+    """HOG-like channels of the patch's lightness, plus (``colour``, BGR input) the cell means
     of the CIELab a and b channels centred on 0 (chromaticity, robust to illumination)."""
     if patch.ndim == 2:
         return hog_like_features(patch.astype(np.float32) * (1.0 / 255.0), cell)
-    gray = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY).astype(np.float32) * (1.0 / 255.0)
-    feats = hog_like_features(gray, cell)
+    lab = cv2.cvtColor(patch, cv2.COLOR_BGR2Lab).astype(np.float32) * (1.0 / 255.0)
+    feats = hog_like_features(np.ascontiguousarray(lab[..., 0]), cell)
     if not colour:
         return feats
-    lab = cv2.cvtColor(patch, cv2.COLOR_BGR2Lab)[..., 1:].astype(np.float32) * (_COLOUR_GAIN / 255.0) - 0.5 * _COLOUR_GAIN
-    ch, cw = feats.shape[1:]
-    ab = lab[:ch * cell, :cw * cell].reshape(ch, cell, cw, cell, 2).mean(axis=(1, 3)).transpose(2, 0, 1)
-    return np.concatenate([feats, ab], axis=0)
+    ab = (_cell_means(np.ascontiguousarray(lab[..., 1:]), cell) - 0.5) * _COLOUR_GAIN
+    return np.concatenate([feats, ab.transpose(2, 0, 1)], axis=0)
 
 
 def gaussian_correlation(xf: np.ndarray, yf: np.ndarray, sigma: float) -> np.ndarray:
