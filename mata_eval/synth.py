@@ -231,7 +231,7 @@ def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
         make = lambda r: tex.vehicle_sprite(length * r.uniform(0.92, 1.08), 0.46 * length, colour + r.normal(0, 8, 3), r)  # noqa: E731
         speed, turn, accel = rng.uniform(1.5, 4.0) * s, 0.025, 0.04 * s
     else:
-        length = rng.uniform(24, 36) * s
+        length = rng.uniform(34, 52) * s
         colour = np.clip(rng.uniform(30, 230, 3), 0, 255)
         make = lambda r: tex.person_sprite(length * r.uniform(0.92, 1.08), np.clip(colour + r.normal(0, 8, 3), 0, 255), r)  # noqa: E731
         speed, turn, accel = rng.uniform(0.5, 1.3) * s, 0.04, 0.015 * s
