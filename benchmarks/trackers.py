@@ -1,13 +1,17 @@
 """Tracker benchmark: milliseconds per frame on 1280x720 frames and mean IoU on the real
 sequences in ../shared/data (issue 7), in one command:
 
-    python benchmarks/trackers.py [--trackers kcf,vittrack,nanotrack] [--opencv] [--frames 60]
+    python benchmarks/trackers.py [--trackers kcf,vittrack,nanotrack] [--no-opencv] [--frames 60]
+                                  [--synthetic 20 --synthetic-frames 300]
 
 Timing: each tracker runs on the UAV123_10fps sequences (real 1280x720 frames, decoded once
 beforehand, JPEG decoding excluded); the figure is the median per-frame time of ``track``.
 Baseline measured in the same run: ``cv2.TrackerVit`` / ``cv2.TrackerNano`` on the same frames
 (``--opencv``, on by default when the models are present), printed as a ratio.
 Accuracy: mean IoU against the ground truth per real sequence, one pass from the first frame.
+``--synthetic N``: also the default synthetic suite (``mata_eval.synth.suite_specs``, 1280x720):
+per tracker, how many sequences it *holds* (success rate, IoU > 0.5 over the frames where the
+target is visible, of at least 0.5) and the mean IoU over visible frames.
 """
 
 from __future__ import annotations
@@ -115,11 +119,30 @@ def make_opencv(name: str):
     return None
 
 
+def synthetic_scores(names: list[str], n: int, n_frames: int) -> dict[str, list[tuple[str, float, float]]]:
+    """Per tracker: (sequence, success rate, mean IoU) over frames with a visible target."""
+    from mata_eval.synth import render_sequence, suite_specs
+
+    scores: dict[str, list[tuple[str, float, float]]] = {name: [] for name in names}
+    for spec in suite_specs(n, n_frames=n_frames):
+        frames, gt, _, _ = render_sequence(spec)
+        visible = np.all(np.isfinite(gt), axis=1)
+        visible[0] = False
+        for name in names:
+            boxes, _, _ = run_ours(make_ours(name), frames, gt[0])
+            ious = iou(boxes[visible], gt[visible])
+            scores[name].append((spec.name, float((ious > 0.5).mean()), float(ious.mean())))
+        del frames
+    return scores
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trackers", default="kcf,vittrack,nanotrack")
     ap.add_argument("--no-opencv", action="store_true", help="skip the cv2.TrackerVit/Nano baseline")
     ap.add_argument("--frames", type=int, default=0, help="limit frames per sequence (0 = all)")
+    ap.add_argument("--synthetic", type=int, default=0, help="also score N synthetic sequences")
+    ap.add_argument("--synthetic-frames", type=int, default=300)
     args = ap.parse_args(argv)
     data = shared_data_dir()
     if not (data / "sequences").is_dir():
@@ -161,6 +184,12 @@ def main(argv: list[str] | None = None) -> int:
                 text += f" [{line[f'{seq}:cv2']:.3f}] {{{line[f'{seq}:parity']:.3f}}}"
             parts.append(text)
         print(f"{line['tracker']:<10} | {timing:<26} | " + ", ".join(parts))
+    if args.synthetic:
+        for name, rows_syn in synthetic_scores(names, args.synthetic, args.synthetic_frames).items():
+            held = sum(sr >= 0.5 for _, sr, _ in rows_syn)
+            print(f"{name:<10} synthetic: holds {held}/{len(rows_syn)} sequences, mean IoU "
+                  f"{np.mean([m for _, _, m in rows_syn]):.3f}; " +
+                  ", ".join(f"{seq} {sr:.2f}/{m:.2f}" for seq, sr, m in rows_syn))
     if "kcf" in [r["tracker"] for r in rows] and any("cv2_ms" in r for r in rows):
         kcf_ms = next(r["ms"] for r in rows if r["tracker"] == "kcf")
         ref = next(r["cv2_ms"] for r in rows if "cv2_ms" in r)
