@@ -134,3 +134,18 @@ def test_registered_as_kcf():
     from mata_eval.registry import load_registry
 
     assert load_registry().plugins["tracker"]["kcf"].cls is KCFTracker
+
+
+@pytest.mark.parametrize("seq,limit,min_iou", [("uav123_10fps/wakeboard10", 60, 0.5), ("otb_Couple", 60, 0.6)])
+def test_holds_real_targets(shared_data, seq, limit, min_iou):
+    """Real footage against its ground truth (UAV123_10fps 10x9 px target; OTB Couple)."""
+    import cv2
+
+    folder = shared_data / "sequences" / seq
+    gt = np.array([[float(v) for v in line.replace("\t", ",").split(",")]
+                   for line in (folder / "groundtruth_rect.txt").read_text().splitlines() if line.strip()])
+    paths = sorted((folder / "img").glob("*.jpg"))[:limit]
+    tracker = KCFTracker()
+    tracker.initialize(cv2.imread(str(paths[0])), Box.from_array(gt[0]))
+    ious = [iou(tracker.track(cv2.imread(str(p))).box, Box.from_array(g)) for p, g in zip(paths[1:], gt[1:])]
+    assert np.mean(ious) > min_iou
