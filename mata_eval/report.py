@@ -337,6 +337,15 @@ def scores_for(run_dir: Path) -> RunScores:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    if getattr(args, "paper", None) or getattr(args, "experiment", None):
+        from .paper_report import cmd_paper
+
+        if not args.paper:
+            args.paper = "auto"
+        return cmd_paper(args)
+    if not args.run_dirs:
+        print("error: give run folders (or --experiment EXP.yaml with --paper)", file=sys.stderr)
+        return 2
     runs = []
     for d in args.run_dirs:
         try:
@@ -369,11 +378,21 @@ def add_cli(subparsers) -> None:
         "report", help="tables (terminal, Markdown, CSV, LaTeX) and plots of scored runs",
         description="Report one or more run folders side by side. A run folder without scores.json is "
                     "scored first when its experiment file is still readable.")
-    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (or scores.json files)")
+    p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run folders (or scores.json files)")
     p.add_argument("--out", help="write tables and success / precision / NT2F plots (PNG) into this folder")
     p.add_argument("--format", choices=FORMATS + ("all",), default="terminal",
                    help="table format (default: %(default)s; with --out, 'all' writes every format)")
     p.add_argument("--table", choices=TABLES + ("both",), default="overall",
                    help="overall metrics, per-challenge SR/NT2F (paper Table 2), or both")
     p.add_argument("--no-plots", action="store_true", help="with --out: tables only")
+    from .paper_report import PAPER_TABLES
+
+    p.add_argument("--paper", choices=PAPER_TABLES + ("auto",),
+                   help="render the paper's table (protocols = Table 1, challenges = 2, ablation = 3, "
+                        "embedded = 4) in Markdown (or LaTeX with --format latex), placing each run from its "
+                        "manifest; with --out also write <table>.md, <table>.tex, plots and summary.html. "
+                        "auto (the default with --experiment): the table named like each experiment")
+    p.add_argument("--experiment", action="append", metavar="EXP.yaml",
+                   help="report every run folder of this experiment file (repeatable: one HTML page with "
+                        "several tables)")
     p.set_defaults(func=cmd_report)

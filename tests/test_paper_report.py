@@ -1,0 +1,254 @@
+"""The paper's tables from run folders: placement from manifests, hand-computed cell values,
+Markdown / LaTeX / HTML structure, and the report CLI."""
+
+from __future__ import annotations
+
+import base64
+import re
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mata_eval import cli, results
+from mata_eval.evaluate import evaluate_run
+from mata_eval.paper_report import (PlacementError, build_table, load_runs, render_paper_table, to_latex)
+from mata_eval.sequence import Sequence
+
+N = 20  # frames per sequence; 30 fps -> 2/3 s of camera time
+GT = np.array([10.0, 10.0, 20.0, 20.0])
+AWAY = np.array([200.0, 200.0, 20.0, 20.0])  # IoU 0 with GT
+
+EKF = {"name": "homography_ekf", "model": "cv", "camera": True, "gating": True, "delay": "ignore"}
+
+
+def config(tracker="kcf", mata=False, protocol=None, occ=False, dataset="synthetic", **over):
+    cfg = {"dataset": {"name": dataset}, "occlusion": {} if occ else None, "tracker": {"name": tracker},
+           "egomotion": {"name": "grid_lk"} if mata else None, "estimator": dict(EKF) if mata else None,
+           "protocol": protocol or {"name": "ltp"}, "seed": 0, "feedback": True, "metrics": {"profile": "default"}}
+    cfg.update(over)
+    return cfg
+
+
+def make_run(root: Path, name: str, cfg: dict, hits: dict[str, int], every: int = 1,
+             attrs: dict[str, tuple[str, ...]] | None = None) -> Path:
+    """A scored run folder: per sequence, the prediction equals the ground truth on the first
+    ``hits`` frames and is disjoint after (so SR = NT2F = PR = hits / N); the tracker starts every
+    ``every`` frames (frequency 30 / every Hz)."""
+    d = root / name
+    results.write_manifest(d, {"experiment": "t", "run": name, "config": cfg, "config_hash": name,
+                               "git_commit": "abc123", "machine": {"cpu": "test"}})
+    seqs = []
+    for seq, h in hits.items():
+        boxes = np.array([GT if k < h else AWAY for k in range(N)])
+        rows = ["frame,scored,confidence,tracker_ms"]
+        rows += [f"{k},1,0.9,{'5.0' if k % every == 0 else ''}" for k in range(N)]
+        results.write_sequence(d, seq, boxes, "\n".join(rows) + "\n", "block,event,frame,t\n")
+        seqs.append(Sequence(seq, np.tile(GT, (N, 1)), attributes=frozenset((attrs or {}).get(seq, ()))))
+    evaluate_run(d, seqs)
+    return d
+
+
+def md_rows(text: str) -> list[list[str]]:
+    return [[c.strip() for c in line.strip("|").split("|")] for line in text.splitlines() if line.startswith("|")]
+
+
+@pytest.fixture
+def protocol_runs(tmp_path):
+    """2 datasets (clean, +occ) x 3 protocols x KCF x MATA off/on; hits encode the cell."""
+    dirs, expect = [], {}
+    protos = {"ltp": {"name": "ltp"}, "eop10": {"name": "eop", "tracker_hz": 10},
+              "eop30": {"name": "eop", "tracker_hz": 30}}
+    h = 1
+    for occ in (True, False):  # +occ first on purpose: the table puts the clean set first
+        for pname, proto in protos.items():
+            for mata in (False, True):
+                name = f"{'occ' if occ else 'clean'}-{pname}-{'mata' if mata else 'base'}"
+                dirs.append(make_run(tmp_path, name, config(mata=mata, protocol=proto, occ=occ), {"s1": h}))
+                expect[name] = h
+                h += 1
+    return dirs, expect
+
+
+def test_protocols_table_places_runs_from_manifests(protocol_runs):
+    dirs, expect = protocol_runs
+    t = build_table("protocols", load_runs(dirs))
+    rows = md_rows(render_paper_table(t, "markdown"))
+    assert rows[0] == ["Protocol", "VOT", "MATA", "Synthetic SR", "Synthetic NT2F",
+                       "Synthetic+occ SR", "Synthetic+occ NT2F"]
+    body = rows[2:]
+    # LTP, then EOP from the fastest tracker rate down; baseline before MATA; merged stub cells blank
+    assert [r[0] for r in body] == ["LTP", "", "EOP @ 30 Hz", "", "EOP @ 10 Hz", ""]
+    assert [r[2] for r in body] == ["✗", "✓"] * 3
+    key = {"LTP": "ltp", "EOP @ 30 Hz": "eop30", "EOP @ 10 Hz": "eop10"}
+    proto = None
+    for r in body:
+        proto = key.get(r[0], proto)
+        m = "mata" if r[2] == "✓" else "base"
+        for col, data in ((3, "clean"), (5, "occ")):
+            pct = f"{100 * expect[f'{data}-{proto}-{m}'] / N:.1f}"
+            assert r[col] == pct and r[col + 1] == pct  # SR and NT2F both hits / N
+
+
+def test_protocols_latex_is_booktabs_with_multirow(protocol_runs):
+    dirs, _ = protocol_runs
+    tex = to_latex(build_table("protocols", load_runs(dirs)))
+    assert r"\begin{tabular}{c|c|c|cc|cc}" in tex
+    assert tex.count(r"\toprule") == tex.count(r"\bottomrule") == 1
+    assert r"\multicolumn{2}{c|}{Synthetic}" in tex and r"\multicolumn{2}{c}{Synthetic+occ}" in tex
+    assert r"\multirow{2}{*}{LTP}" in tex and r"\multirow{2}{*}{EOP @ 10 Hz}" in tex
+    assert r"\multirow{6}{*}{KCF}" not in tex  # a tracker cell never spans two protocols
+    assert tex.count(r"$\checkmark$") == 3 and tex.count(r"$\times$") == 3
+    body = tex.split(r"\midrule", 1)[1].split(r"\bottomrule")[0]
+    data = [ln for ln in body.splitlines() if ln.strip().endswith(r"\\")]
+    assert len(data) == 6 and all(ln.count("&") == 6 for ln in data)
+
+
+def test_same_cell_twice_is_an_error_naming_both_runs(tmp_path):
+    a = make_run(tmp_path, "a", config(), {"s1": 5})
+    b = make_run(tmp_path, "b", config(), {"s1": 6})
+    with pytest.raises(PlacementError, match=r"'a'.*'b'"):
+        build_table("protocols", load_runs([a, b]))
+
+
+def test_run_without_manifest_cannot_be_placed(tmp_path):
+    d = make_run(tmp_path, "a", config(), {"s1": 5})
+    (d / "manifest.json").unlink()
+    with pytest.raises(PlacementError, match="manifest"):
+        load_runs([d])
+
+
+def test_challenges_table_per_group(tmp_path):
+    attrs = {"occ1": ("POC",), "occ2": ("FOC", "FM"), "fast": ("FM",), "plain": ()}
+    proto = {"name": "eop", "tracker_hz": 10}
+    base = make_run(tmp_path, "base", config(protocol=proto, occ=True),
+                    {"occ1": 4, "occ2": 8, "fast": 20, "plain": 20}, attrs=attrs)
+    mata = make_run(tmp_path, "mata", config(mata=True, protocol=proto, occ=True),
+                    {"occ1": 12, "occ2": 16, "fast": 10, "plain": 20}, attrs=attrs)
+    rows = md_rows(render_paper_table(build_table("challenges", load_runs([mata, base])), "markdown"))
+    head = rows[0]
+    assert head[:2] == ["VOT", "MATA"]
+    assert "Occlusion (2) SR" in head and "High dynamic (2) NT2F" in head and "Distractor (0) SR" in head
+    occ, fast, dis = head.index("Occlusion (2) SR"), head.index("High dynamic (2) SR"), head.index("Distractor (0) SR")
+    b, m = rows[2], rows[3]  # baseline row first although given second
+    assert b[1] == "✗" and m[1] == "✓"
+    assert b[occ] == f"{100 * (4 + 8) / 2 / N:.1f}" and m[occ] == f"{100 * (12 + 16) / 2 / N:.1f}"
+    assert b[fast] == f"{100 * (8 + 20) / 2 / N:.1f}" and m[fast] == f"{100 * (16 + 10) / 2 / N:.1f}"
+    assert b[dis] == "-" and b[dis + 1] == "-"  # an empty group has no value
+
+
+def test_ablation_rows_marks_and_details(tmp_path):
+    proto = {"name": "eop", "tracker_hz": 10}
+    confs = {
+        "1-baseline": config(protocol=proto),
+        "2-mata": config(mata=True, protocol=proto),
+        "4-no-camera": config(mata=True, protocol=proto, egomotion=None, estimator={**EKF, "camera": False}),
+        "5-ca": config(mata=True, protocol=proto, estimator={**EKF, "model": "ca"}),
+        "7-no-threshold": config(mata=True, protocol=proto, estimator={**EKF, "gating": False}),
+        "3-score": config(protocol=proto),
+    }
+    confs["3-score"]["tracker"] = {"name": "mixformerv2", "confidence": "window"}
+    dirs = [make_run(tmp_path, n, c, {"s": i + 3}) for i, (n, c) in enumerate(confs.items())]
+    rows = md_rows(render_paper_table(build_table("ablation", load_runs(dirs)), "markdown"))
+    assert rows[0] == ["Configuration", "Ego motion", "EKF", "Score", "Details", "PR", "SR", "MSR", "NT2F"]
+    body = {r[0]: r for r in rows[2:]}
+    assert [r[0] for r in rows[2:]] == ["1", "2", "3", "4", "5", "7"]
+    assert body["1"][1:5] == ["✗", "✗", "-", "KCF (baseline)"]
+    assert body["2"][1:5] == ["✓", "✓", "-", "MATA"]
+    assert body["3"][1:5] == ["✗", "✗", "✓", "MixFormerV2 (baseline), explainable score"]
+    assert body["4"][1:5] == ["✗", "✓", "-", "no camera compensation"]
+    assert body["5"][4] == "constant acceleration model"
+    assert body["7"][4] == "no threshold on measurements"
+    # values: hits = index + 3 in the given order; MSR of a hit/miss sequence = hits/N * 20/21
+    assert body["5"][5:9] == [f"{100 * 6 / N:.1f}", f"{100 * 6 / N:.1f}", f"{100 * 6 / N * 20 / 21:.1f}",
+                              f"{100 * 6 / N:.1f}"]
+
+
+def test_embedded_table_differences_and_frequencies(tmp_path):
+    runs = []
+    for mata, (he, hp, hl) in ((False, (10, 12, 18)), (True, (14, 13, 20))):
+        tag = "mata" if mata else "base"
+        runs.append(make_run(tmp_path, f"emb-{tag}", config(mata=mata, protocol={"name": "vot_rt", "time_scale": 6}),
+                             {"s": he}, every=3))
+        runs.append(make_run(tmp_path, f"eop-{tag}", config(mata=mata, protocol={"name": "eop", "tracker_hz": "profile"}),
+                             {"s": hp}, every=2))
+        runs.append(make_run(tmp_path, f"ltp-{tag}", config(mata=mata), {"s": hl}, every=1))
+    t = build_table("embedded", load_runs(runs))
+    rows = md_rows(render_paper_table(t, "markdown"))
+    assert rows[0][:2] == ["VOT", "MATA"] and rows[0][2:5] == ["Embedded SR", "Embedded NT2F", "Embedded Freq."]
+    # tracker starts: every 3rd frame of 20 -> 7 starts in 2/3 s = 10.5 Hz; every 2nd -> 15 Hz
+    assert rows[2] == ["KCF", "✗", "50.0", "50.0", "10.5", "10.0", "10.0", "15.0", "40.0", "40.0", "30.0"]
+    assert rows[3] == ["", "✓", "70.0", "70.0", "10.5", "5.0", "5.0", "15.0", "30.0", "30.0", "30.0"]
+    # mean |dSR|: EOP (10 + 5) / 2 = 7.5, LTP (40 + 30) / 2 = 35 -> 4.7x
+    assert "mean |Delta SR|: EOP 7.5, LTP 35.0 points (LTP / EOP = 4.7x)" in t.notes
+
+
+def test_embedded_table_rejects_other_protocols(tmp_path):
+    d = make_run(tmp_path, "dsp", config(protocol={"name": "dsp", "n": 3}), {"s": 3})
+    with pytest.raises(PlacementError, match="vot_rt"):
+        build_table("embedded", load_runs([d]))
+
+
+class _Collect(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.tags: list[tuple[str, dict]] = []
+        self.stack: list[str] = []
+
+    def handle_starttag(self, tag, attrs):
+        self.tags.append((tag, dict(attrs)))
+        if tag not in ("img", "meta", "br"):
+            self.stack.append(tag)
+
+    def handle_endtag(self, tag):
+        assert self.stack and self.stack[-1] == tag, f"</{tag}> closes <{self.stack[-1] if self.stack else None}>"
+        self.stack.pop()
+
+
+def test_report_cli_writes_tables_plots_and_one_page_html(protocol_runs, tmp_path, capsys):
+    dirs, expect = protocol_runs
+    out = tmp_path / "paper"
+    assert cli.main(["report", "--paper", "protocols", *map(str, dirs), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| Protocol | VOT | MATA |" in printed
+    for f in ("protocols.md", "protocols.tex", "summary.html", "protocols/success.png", "protocols/nt2f.png",
+              "protocols/precision.png", "protocols/norm_precision.png"):
+        assert (out / f).is_file(), f
+    page = (out / "summary.html").read_text()
+    p = _Collect()
+    p.feed(page)
+    p.close()
+    assert p.stack == []  # every element closed, properly nested
+    tags = [t for t, _ in p.tags]
+    assert tags.count("html") == 1 and tags.count("table") == 1 and tags.count("link") == 0
+    imgs = [a["src"] for t, a in p.tags if t == "img"]
+    assert len(imgs) == 4
+    pngs = {(out / "protocols" / f).read_bytes() for f in ("success.png", "precision.png", "norm_precision.png",
+                                                            "nt2f.png")}
+    decoded = {base64.b64decode(s.split(",", 1)[1]) for s in imgs}
+    assert all(s.startswith("data:image/png;base64,") for s in imgs) and decoded == pngs
+    # the HTML table carries the same numbers as the Markdown one
+    cells = re.findall(r"<td>([^<]*)</td>", page)
+    assert cells.count(f"{100 * expect['occ-eop10-mata'] / N:.1f}") >= 2
+    assert 'rowspan="2"' in page and 'colspan="2"' in page
+
+
+def test_report_cli_experiment_files(tmp_path, capsys):
+    exp = tmp_path / "protocols.yaml"
+    out = tmp_path / "res"
+    exp.write_text(f"name: protocols\noutput: {out}\ndataset: {{name: synthetic}}\ntracker: {{name: kcf}}\n"
+                   "matrix:\n  mata:\n    baseline: {}\n    mata: {estimator: {name: homography_ekf}}\n")
+    make_run(out, "baseline", config(), {"s": 4})
+    make_run(out, "mata", config(mata=True), {"s": 6})
+    assert cli.main(["report", "--experiment", str(exp)]) == 0  # --paper auto: the table named like it
+    rows = md_rows(capsys.readouterr().out)
+    assert rows[2] == ["LTP", "KCF", "✗", "20.0", "20.0"] and rows[3] == ["", "", "✓", "30.0", "30.0"]
+    # a zero-order hold only holds the tracker's box: it is a baseline, in the baseline's cell
+    make_run(out, "mata", config(estimator={"name": "zoh"}), {"s": 6})
+    assert cli.main(["report", "--experiment", str(exp)]) == 2
+    assert "same cell" in capsys.readouterr().err
+    other = tmp_path / "other.yaml"
+    other.write_text(exp.read_text().replace("name: protocols", "name: other"))
+    assert cli.main(["report", "--experiment", str(other)]) == 2
+    assert "not one of the paper's tables" in capsys.readouterr().err
