@@ -129,3 +129,97 @@ class TensorRTRunner:
             out = {name: self.buffers[name].to("cpu", non_blocking=False).numpy() for name in self.outputs}
         self.stream.synchronize()
         return out
+
+
+# --- exported torch trackers behind their torch interface --------------------------------------
+# `mata-eval export mixformerv2 | ostrack` writes the graphs and an export.json (network constants,
+# graph files). These adapters give the trackers the same calls as their torch networks, with
+# torch tensors in and out, so only the network changes with the backend.
+
+def _np(t) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().cpu().numpy().astype(np.float32, copy=False))
+
+
+class _ExportedGraphs:
+    def __init__(self, folder: str | Path, model: str, backend: Backend, device: Device, threads: int, fp16: bool):
+        from mata_eval.export import read_manifest
+
+        self.folder = Path(folder).expanduser()
+        self.doc = read_manifest(self.folder, model)
+        self._open = lambda role: open_onnx(self.folder / self.doc["graphs"][role]["file"], backend, device, threads, fp16)
+        self._runners: dict[str, Runner] = {}
+
+    def open(self, *roles: str) -> None:
+        """Open these graphs now (a missing backend fails here, not in the first frame)."""
+        for role in roles:
+            self.run_for(role)
+
+    def run_for(self, role: str) -> Runner:
+        if role not in self._runners:
+            if role not in self.doc["graphs"]:
+                raise FileNotFoundError(f"{self.folder / 'export.json'}: no {role!r} graph in this export "
+                                        f"(it has: {', '.join(self.doc['graphs'])})")
+            self._runners[role] = self._open(role)
+        return self._runners[role]
+
+    def run(self, role: str, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return self.run_for(role)(feeds)
+
+    def eval(self):
+        return self
+
+    def to(self, device):
+        return self
+
+
+class ExportedMixFormerV2(_ExportedGraphs):
+    """``MixFormerV2Net``'s calls (``__call__``, ``encode_templates``, ``forward_search``) on the
+    exported graphs; the template cache is the template graph's key/value outputs."""
+
+    def __init__(self, folder: str | Path, backend: Backend = "onnxruntime", device: Device = "cpu",
+                 threads: int = 0, fp16: bool = False):
+        from .vit import MixFormerV2Config
+
+        super().__init__(folder, "mixformerv2", backend, device, threads, fp16)
+        c = self.doc["config"]
+        self.cfg = MixFormerV2Config(template_size=c["template_size"], search_size=c["search_size"], depth=c["depth"],
+                                     embed_dim=c["embed_dim"], num_heads=c["num_heads"], feat_sz=c["feat_sz"])
+
+    def _outputs(self, out: dict[str, np.ndarray]):
+        import torch
+
+        pmfs = np.stack([out[f"pmf_{s}"] for s in ("left", "top", "right", "bottom")], axis=1)
+        return torch.from_numpy(out["box"]), torch.from_numpy(out["score_logit"]), torch.from_numpy(pmfs)
+
+    def __call__(self, z, oz, x):
+        return self._outputs(self.run("full", {"template": _np(z), "online_template": _np(oz), "search": _np(x)}))
+
+    def encode_templates(self, z, oz) -> dict[str, np.ndarray]:
+        return self.run("template", {"template": _np(z), "online_template": _np(oz)})
+
+    def forward_search(self, x, cache: dict[str, np.ndarray]):
+        return self._outputs(self.run("search", {"search": _np(x), **cache}))
+
+
+class ExportedOSTrack(_ExportedGraphs):
+    """``OSTrackNet.__call__(template, search, keep_ratio)`` on the exported graph (candidate
+    elimination fixed at the exported keep ratio)."""
+
+    def __init__(self, folder: str | Path, backend: Backend = "onnxruntime", device: Device = "cpu",
+                 threads: int = 0, fp16: bool = False):
+        from .vit import OSTrackConfig
+
+        super().__init__(folder, "ostrack", backend, device, threads, fp16)
+        c = self.doc["config"]
+        self.cfg = OSTrackConfig(template_size=c["template_size"], search_size=c["search_size"],
+                                 ce_loc=tuple(c["ce_loc"]), ce_keep_ratio=tuple(c["ce_keep_ratio"]))
+        self.open("full")
+
+    def __call__(self, z, x, keep_ratio: float | None = None):
+        import torch
+
+        if keep_ratio is not None and any(abs(keep_ratio - r) > 1e-9 for r in self.cfg.ce_keep_ratio):
+            raise ValueError(f"ostrack: the exported graph in {self.folder} eliminates candidates at keep ratio "
+                             f"{self.cfg.ce_keep_ratio}; ce_keep_ratio {keep_ratio} needs the torch backend")
+        out = self.run("full", {"template": _np(z), "search": _np(x)})
+        return tuple(torch.from_numpy(out[n]) for n in ("score_map", "size_map", "offset_map"))

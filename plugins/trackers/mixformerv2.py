@@ -9,7 +9,8 @@ back to the image and clipped (margin 10 px) as upstream.
 
 Confidence: ``window`` = ``min_c`` of the probability mass in ``2 round(alpha N / 2) + 1`` bins
 around each PMF's mode, truncated at the edges (alpha = 0.03 -> 3 bins of 96); ``mlp`` = the
-original sigmoid score. The chosen one is reported and gates the template update.
+original sigmoid score. The chosen one is reported and gates the template update. ``extra`` also
+holds both scores and each side's PMF standard deviation in image pixels (``sigma_left`` ...).
 
 Template update (``template_update``): ``threshold`` (paper) replaces the online template by the
 crop at the new box whenever the score exceeds ``tau_template``; ``interval`` is upstream's policy
@@ -124,8 +125,10 @@ class MixFormerV2:
         trust_pickle: bool = param(False, "allow full unpickling of a trusted legacy checkpoint (default: weights only)")
         random_weights: bool = param(False, "no checkpoint: seeded random weights (timing and plumbing only)")
         seed: int = param(0, "seed of the random weights")
-        device: str = param("cpu", "torch device: cpu, cuda, cuda:1, ...")
+        device: str = param("cpu", "torch device: cpu, cuda, cuda:1, ...; onnxruntime: cpu, cuda or tensorrt")
         threads: int = param(0, "torch CPU threads (0 = leave torch's setting)")
+        backend: Literal["torch", "onnxruntime", "tensorrt"] = param("torch", "torch, or the graphs of `mata-eval export mixformerv2` (folder `onnx`) on onnxruntime / a TensorRT engine")
+        onnx: str | None = param(None, "folder written by `mata-eval export mixformerv2` (onnxruntime / tensorrt backends)")
         search_factor: float = param(4.5, "search crop side / sqrt(w h) (yaml TEST 4.5; upstream scripts use 4.4-5.0)")
         template_factor: float = param(2.0, "template crop side / sqrt(w h)")
         confidence: Literal["window", "mlp"] = param("window", "reported and gating score: paper's PMF window score or the original MLP score")
@@ -147,7 +150,9 @@ class MixFormerV2:
         self.variant = VARIANTS[p.variant]
         self._net = network
         self._path = None
-        if network is None and not p.random_weights:  # fail early, naming the file
+        if p.backend != "torch" and network is None and not p.onnx:
+            raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export mixformerv2`")
+        if network is None and not p.random_weights and p.backend == "torch":  # fail early, naming the file
             self._path = checkpoint_path(p.checkpoint, self.variant.env_var, self.variant.file_name, SOURCE)
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
         self._state: Box | None = None
@@ -156,6 +161,12 @@ class MixFormerV2:
 
     def network(self):
         """The torch network (built and loaded on first call)."""
+        if self._net is None and self.params.backend != "torch":
+            from .backends import ExportedMixFormerV2
+
+            p = self.params
+            self._net = ExportedMixFormerV2(p.onnx, p.backend, p.device, p.threads)
+            self._net.open(*(("template", "search") if p.template_cache else ("full",)))
         if self._net is None:
             import torch
 
@@ -185,7 +196,7 @@ class MixFormerV2:
         from .vit import image_to_tensor
 
         patch, resize_factor = sample_target(image, box, factor, size, center=center)
-        return image_to_tensor(patch, self.params.device), resize_factor
+        return image_to_tensor(patch, self.params.device if self.params.backend == "torch" else "cpu"), resize_factor
 
     def _set_online(self, online) -> None:
         import torch
@@ -235,9 +246,20 @@ class MixFormerV2:
         if commit:
             self._set_online(self._candidate if self._candidate is not None else self._template)
             self._candidate = None
-        return TrackerOutput(
-            box=self._state, confidence=score, pmfs=pmfs,
-            extra={"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit)})
+        extra = {"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit)}
+        extra.update(zip(("sigma_left", "sigma_top", "sigma_right", "sigma_bottom"),
+                         pmf_sigmas_px(pmfs, size / resize_factor)))
+        return TrackerOutput(box=self._state, confidence=score, pmfs=pmfs, extra=extra)
+
+
+def pmf_sigmas_px(pmfs: np.ndarray, crop_side_px: float) -> list[float]:
+    """Standard deviation of each side's PMF in image pixels: ``sqrt(Var_j[p]) * crop / N`` (bin
+    width = crop side / N at image scale; MODELS.md 1.6, a cheap per-corner measurement noise)."""
+    p = np.asarray(pmfs, dtype=np.float64)
+    j = np.arange(p.shape[-1], dtype=np.float64)
+    mean = (p * j).sum(axis=-1)
+    var = np.maximum((p * j * j).sum(axis=-1) - mean * mean, 0.0)
+    return [float(v) for v in np.sqrt(var) * crop_side_px / p.shape[-1]]
 
 
 def _check_image(image: np.ndarray) -> None:

@@ -15,7 +15,7 @@ Torch is imported only when the tracker is used (it is an optional extra).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -60,8 +60,10 @@ class OSTrack:
         trust_pickle: bool = param(False, "allow full unpickling of a trusted legacy checkpoint (default: weights only)")
         random_weights: bool = param(False, "no checkpoint: seeded random weights (timing and plumbing only)")
         seed: int = param(0, "seed of the random weights")
-        device: str = param("cpu", "torch device: cpu, cuda, cuda:1, ...")
+        device: str = param("cpu", "torch device: cpu, cuda, cuda:1, ...; onnxruntime: cpu, cuda or tensorrt")
         threads: int = param(0, "torch CPU threads (0 = leave torch's setting)")
+        backend: Literal["torch", "onnxruntime", "tensorrt"] = param("torch", "torch, or the graph of `mata-eval export ostrack` (folder `onnx`) on onnxruntime / a TensorRT engine")
+        onnx: str | None = param(None, "folder written by `mata-eval export ostrack` (onnxruntime / tensorrt backends)")
         search_factor: float = param(4.0, "search crop side / sqrt(w h)")
         template_factor: float = param(2.0, "template crop side / sqrt(w h)")
         ce_keep_ratio: float | None = param(None, "override the keep ratio of the CE blocks (null = 0.7 as trained; 1.0 disables CE)")
@@ -78,12 +80,19 @@ class OSTrack:
             raise ValueError(f"ce_keep_ratio must lie in (0, 1], got {p.ce_keep_ratio}")
         self._net = network
         self._path = None
-        if network is None and not p.random_weights:
+        if p.backend != "torch" and network is None and not p.onnx:
+            raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export ostrack`")
+        if network is None and not p.random_weights and p.backend == "torch":
             self._path = checkpoint_path(p.checkpoint, ENV_VAR, FILE_NAME, SOURCE)
         self._state: Box | None = None
 
     def network(self):
         """The torch network (built and loaded on first call)."""
+        if self._net is None and self.params.backend != "torch":
+            from .backends import ExportedOSTrack
+
+            p = self.params
+            self._net = ExportedOSTrack(p.onnx, p.backend, p.device, p.threads)
         if self._net is None:
             import torch
 
@@ -105,6 +114,9 @@ class OSTrack:
         self._net.eval().to(self.params.device)
         return self._net
 
+    def _tensor_device(self) -> str:
+        return self.params.device if self.params.backend == "torch" else "cpu"
+
     def initialize(self, image: np.ndarray, box: Box) -> None:
         from .vit import image_to_tensor
 
@@ -113,7 +125,7 @@ class OSTrack:
             raise ValueError(f"initial box must be finite with positive size, got {box}")
         net = self.network()
         patch, _ = sample_target(image, box, self.params.template_factor, net.cfg.template_size)
-        self._template = image_to_tensor(patch, self.params.device)
+        self._template = image_to_tensor(patch, self._tensor_device())
         self._hann = hann_window_2d(net.cfg.feat_sz)
         self._state = box
 
@@ -130,7 +142,7 @@ class OSTrack:
         center = self._state.center if prior is None else (float(prior[0]), float(prior[1]))
         patch, resize_factor = sample_target(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
-            score, size_map, offset = net(self._template, image_to_tensor(patch, p.device), p.ce_keep_ratio)
+            score, size_map, offset = net(self._template, image_to_tensor(patch, self._tensor_device()), p.ce_keep_ratio)
         score_map = score[0, 0].double().cpu().numpy()
         response = score_map * self._hann if p.hann_window else score_map
         pred = center_head_box(response, size_map[0].double().cpu().numpy(), offset[0].double().cpu().numpy())

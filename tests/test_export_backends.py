@@ -1,0 +1,105 @@
+"""Backends selectable per tracker: MixFormerV2 and OSTrack on the graphs of ``mata-eval export``
+through ONNX Runtime follow their torch trackers frame by frame (same boxes, confidences and
+template updates); a wrong setup names what is missing; TensorRT is skipped where absent."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx", reason="torch.onnx.export needs the onnx package (pip install onnx)")
+
+from mata_eval import export as E  # noqa: E402
+from mata_eval.types import Box  # noqa: E402
+from mata_eval_plugins.trackers import vit  # noqa: E402
+from mata_eval_plugins.trackers.mixformerv2 import MixFormerV2  # noqa: E402
+from mata_eval_plugins.trackers.ostrack import OSTrack  # noqa: E402
+
+from test_export import TINY_MF, TINY_OS  # noqa: E402
+
+
+def _frames(n=6, seed=0):
+    """A textured background with a bright square moving 3 px right and 2 px down per frame."""
+    rng = np.random.default_rng(seed)
+    base = rng.integers(0, 255, (96, 128, 3), dtype=np.uint8)
+    out = []
+    for k in range(n):
+        f = base.copy()
+        f[30 + 2 * k:50 + 2 * k, 40 + 3 * k:60 + 3 * k] = (20, 220, 250)
+        out.append(f)
+    return out
+
+
+@pytest.mark.parametrize("template_cache", [True, False])
+def test_mixformerv2_onnxruntime_follows_torch(tmp_path, template_cache):
+    torch.manual_seed(4)
+    net = vit.MixFormerV2Net(TINY_MF).eval()
+    E.export_mixformerv2(tmp_path, network=net, seed=4)
+    common = dict(template_cache=template_cache, tau_template=0.0)   # update the template every frame
+    ref = MixFormerV2(MixFormerV2.Params(**common), network=net)
+    onnx = MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path), **common))
+    frames = _frames()
+    for t in (ref, onnx):
+        t.initialize(frames[0], Box(40, 30, 20, 20))
+    for f in frames[1:]:
+        a, b = ref.track(f), onnx.track(f, prior=None)
+        np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=1e-3)
+        assert b.confidence == pytest.approx(a.confidence, abs=1e-5)
+        np.testing.assert_allclose(b.pmfs, a.pmfs, atol=1e-5)
+        assert b.extra["template_updated"] == a.extra["template_updated"] == 1.0
+
+
+def test_ostrack_onnxruntime_follows_torch(tmp_path):
+    torch.manual_seed(5)
+    net = vit.OSTrackNet(TINY_OS).eval()
+    E.export_ostrack(tmp_path, network=net, seed=5)
+    ref = OSTrack(OSTrack.Params(), network=net)
+    onnx = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
+    frames = _frames(seed=1)
+    for t in (ref, onnx):
+        t.initialize(frames[0], Box(40, 30, 20, 20))
+    for k, f in enumerate(frames[1:]):
+        prior = (52.0 + k, 42.0) if k % 2 else None      # the MATA prior moves the search region
+        a, b = ref.track(f, prior), onnx.track(f, prior)
+        np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=1e-3)
+        assert b.confidence == pytest.approx(a.confidence, abs=1e-5)
+    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
+    t.initialize(frames[0], Box(40, 30, 20, 20))
+    with pytest.raises(ValueError, match="keep ratio"):   # CE is baked into the graph
+        t.track(frames[1])
+
+
+def test_backend_setup_errors_name_what_is_missing(tmp_path):
+    with pytest.raises(ValueError, match="needs `onnx`"):
+        MixFormerV2(MixFormerV2.Params(backend="onnxruntime"))
+    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
+    with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export ostrack"):
+        t.initialize(_frames(1)[0], Box(40, 30, 20, 20))
+
+
+def test_tensorrt_backend_is_skipped_or_explains(tmp_path):
+    if importlib.util.find_spec("tensorrt") is None:
+        from mata_eval_plugins.trackers.backends import BackendUnavailable
+
+        torch.manual_seed(6)
+        E.export_ostrack(tmp_path, network=vit.OSTrackNet(TINY_OS).eval(), seed=6)
+        t = OSTrack(OSTrack.Params(backend="tensorrt", onnx=str(tmp_path)))
+        with pytest.raises(BackendUnavailable, match="TensorRT is not installed"):
+            t.initialize(_frames(1)[0], Box(40, 30, 20, 20))
+        pytest.skip("TensorRT is not installed here: engine build and run not exercised")
+    if not torch.cuda.is_available():
+        pytest.skip("TensorRT is installed but no CUDA device is visible")
+    torch.manual_seed(6)
+    net = vit.OSTrackNet(TINY_OS).eval()
+    E.export_ostrack(tmp_path, network=net, seed=6)
+    ref = OSTrack(OSTrack.Params(), network=net)
+    trt = OSTrack(OSTrack.Params(backend="tensorrt", onnx=str(tmp_path)))
+    frames = _frames(seed=2)
+    for t in (ref, trt):
+        t.initialize(frames[0], Box(40, 30, 20, 20))
+    a, b = ref.track(frames[1]), trt.track(frames[1])
+    np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=0.5)
