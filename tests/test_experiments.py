@@ -1,0 +1,133 @@
+"""Every experiment file of ``experiments/`` loads and validates, and the paper's tables are laid
+out as the paper's (tab:result_protocol, tab:metrics_per_challenges, tab:ablation_study,
+tab:embedded_results)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from mata_eval.config import load_experiment
+from mata_eval.paper_report import ablation_marks, embedded_role, is_mata, protocol_label
+from mata_eval.timing_profile import read_profile
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = sorted((ROOT / "experiments").glob("*.yaml"))
+
+
+@pytest.fixture(autouse=True)
+def _repo_cwd(monkeypatch):
+    monkeypatch.chdir(ROOT)  # timing-profile paths in the files are relative to the repository root
+
+
+def key(spec):
+    """Where a run sits in Table 1: (dataset, occlusion on, protocol, tracker, MATA)."""
+    r = spec.resolved
+    return (r["dataset"]["name"], r["occlusion"] is not None, protocol_label(r["protocol"])[0],
+            r["tracker"]["name"], is_mata(r))
+
+
+def test_every_experiment_file_is_here():
+    names = {p.name for p in EXPERIMENTS}
+    assert {"quickstart.yaml", "protocols.yaml", "challenges.yaml", "ablation.yaml", "embedded.yaml"} <= names
+    assert {"protocols_real.yaml", "challenges_real.yaml", "ablation_real.yaml", "embedded_real.yaml"} <= names
+
+
+@pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.name for p in EXPERIMENTS])
+def test_experiment_loads_and_validates(path):
+    exp = load_experiment(path)
+    assert exp.runs
+    assert len({r.name for r in exp.runs}) == len(exp.runs)
+    if not path.stem.endswith("_real"):  # the default runs use the built-in synthetic suite
+        assert {r.dataset.name for r in exp.runs} == {"synthetic"}
+
+
+def test_protocols_is_table_1():
+    exp = load_experiment(ROOT / "experiments/protocols.yaml")
+    keys = {key(r) for r in exp.runs}
+    assert len(keys) == len(exp.runs) == 2 * 2 * 2 * 3  # no two runs in one cell
+    assert {k[2] for k in keys} == {"LTP", "EOP @ 30 Hz", "EOP @ 10 Hz"}
+    assert {k[1] for k in keys} == {False, True}  # clean and occlusion-augmented column groups
+    for r in exp.runs:
+        proto = r.resolved["protocol"]
+        if proto["name"] == "eop":  # the paper's EOP: one-period tracker latency, other blocks at 30 Hz, no delay
+            assert proto["tracker_latency"] == "period" and proto["egomotion_hz"] is None
+            assert proto["estimator_latency"] == "none"
+        assert (r.egomotion is None) == (r.estimator is None) == (not is_mata(r.resolved))
+
+
+def test_protocols_real_has_the_papers_three_column_groups():
+    exp = load_experiment(ROOT / "experiments/protocols_real.yaml")
+    groups = {(k[0], k[1]) for k in map(key, exp.runs)}
+    assert groups == {("uav123", False), ("uav123", True), ("vtuav", False)}  # UAV123, UAV123+occ, VTUAV
+    assert len({key(r) for r in exp.runs}) == len(exp.runs)
+
+
+@pytest.mark.parametrize("pair", [("challenges", "protocols"), ("challenges_real", "protocols_real")])
+def test_challenges_runs_are_the_eop10_occlusion_runs_of_protocols(pair):
+    ch = load_experiment(ROOT / f"experiments/{pair[0]}.yaml")
+    pr = load_experiment(ROOT / f"experiments/{pair[1]}.yaml")
+    assert ch.output == pr.output
+    by_name = {r.name: r for r in pr.runs}
+    for r in ch.runs:  # same folder, same name, same configuration: a run is computed once
+        assert r.name in by_name and by_name[r.name].config_hash == r.config_hash
+        assert r.occlusion is not None and protocol_label(r.resolved["protocol"])[0] == "EOP @ 10 Hz"
+    assert {(r.tracker.name, is_mata(r.resolved)) for r in ch.runs} == {
+        (t, m) for t in {r.tracker.name for r in pr.runs} for m in (False, True)}
+
+
+# paper tab:ablation_study: (ego motion, EKF) marks of configurations 1 to 7
+PAPER_ABLATION = {"1": (False, False), "2": (True, True), "3": (False, False), "4": (False, True),
+                  "5": (True, True), "6": (True, True), "7": (True, True)}
+
+
+@pytest.mark.parametrize("name", ["ablation", "ablation_real"])
+def test_ablation_is_table_3(name):
+    exp = load_experiment(ROOT / f"experiments/{name}.yaml")
+    runs = {r.name.split("-")[0]: r for r in exp.runs}
+    assert sorted(runs) == sorted(PAPER_ABLATION)
+    details = {}
+    for n, r in runs.items():
+        ego, ekf, _, details[n] = ablation_marks(r.resolved)
+        assert (ego, ekf) == PAPER_ABLATION[n], n
+        assert r.occlusion is not None and protocol_label(r.resolved["protocol"])[0] == "EOP @ 10 Hz"
+    assert details["4"] == "no camera compensation" and details["5"] == "constant acceleration model"
+    assert details["6"] == "constant jerk model" and details["7"] == "no threshold on measurements"
+
+
+@pytest.mark.parametrize("name", ["embedded", "embedded_real"])
+def test_embedded_is_table_4_with_a_profile_per_tracker(name):
+    exp = load_experiment(ROOT / f"experiments/{name}.yaml")
+    roles = {}
+    for r in exp.runs:
+        proto = r.resolved["protocol"]
+        role = {"vot_rt": "embedded"}.get(proto["name"], proto["name"])
+        roles.setdefault((r.tracker.name, is_mata(r.resolved)), set()).add(role)
+        assert r.occlusion is not None
+        if role == "eop":
+            assert proto["tracker_hz"] == "profile" and proto["tracker_latency"] == "period"
+            prof = read_profile(proto["latency_profile"])
+            assert prof.machine["tracker"] == r.tracker.name  # each tracker its own profile
+            assert 8.0 < prof.block("tracker").rate_hz < 12.0  # the paper's ~10 Hz device
+            scales = {x.resolved["protocol"].get("time_scale") for x in exp.runs
+                      if x.resolved["protocol"]["name"] == "vot_rt"}
+            assert scales == {prof.machine["time_scale"]}  # the emulated device is the same one
+    assert all(v == {"embedded", "eop", "ltp"} for v in roles.values())
+    assert len(roles) == 4
+
+
+def test_embedded_roles_match_the_report():
+    exp = load_experiment(ROOT / "experiments/embedded.yaml")
+
+    class _Run:  # what embedded_role reads
+        def __init__(self, cfg):
+            self.config = cfg
+
+    assert sorted(embedded_role(_Run(r.resolved)) for r in exp.runs) == sorted(["embedded", "eop", "ltp"] * 4)
+
+
+def test_quickstart_is_the_readme_job():
+    exp = load_experiment(ROOT / "experiments/quickstart.yaml")
+    keys = {key(r) for r in exp.runs}
+    assert keys == {("synthetic", True, p, "kcf", m) for p in ("LTP", "EOP @ 10 Hz") for m in (False, True)}
