@@ -235,6 +235,8 @@ def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
         colour = np.clip(rng.uniform(30, 230, 3), 0, 255)
         make = lambda r: tex.person_sprite(length * r.uniform(0.92, 1.08), np.clip(colour + r.normal(0, 8, 3), 0, 255), r)  # noqa: E731
         speed, turn, accel = rng.uniform(0.5, 1.3) * s, 0.04, 0.015 * s
+    if spec.occlusion != "none":  # fast enough to start clear of the canopy and reach it
+        speed = max(speed, 4.5 * length / (0.4 * n))
     rel, heading = _kinematics(rng, n, speed, turn, accel, rng.uniform(0, 2 * np.pi))
     shift = centre - (rel.min(0) + rel.max(0)) / 2.0
     P = rel + shift
@@ -307,8 +309,10 @@ def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
             k_occ += 1  # the target must start clear of the canopy (tracker initialisation)
         side = rng.choice([-1, 1]) * (0.0 if spec.occlusion == "full" else rng.uniform(0.7, 1.1) * radius)
         normal = np.array([-np.sin(heading[k_occ]), np.cos(heading[k_occ])])
-        trees.append(_Placed(tex.tree_sprite(radius, srng), P[k_occ] + side * normal, np.zeros(1)))
-        events.append({"kind": "tree", "frame": k_occ, "radius": float(radius)})
+        tree = tex.tree_sprite(radius, srng)
+        if np.linalg.norm(P[k_occ] - P[0]) >= 2.2 * radius + 1.5 * length:
+            trees.append(_Placed(tree, P[k_occ] + side * normal, np.zeros(1)))
+            events.append({"kind": "tree", "frame": k_occ, "radius": float(radius)})
     # Scenery trees, kept away from the target's path (only the staged tree may occlude it).
     cand = rng.uniform(0, T, (int(60 * (T / 4096) ** 2) + 4, 2))
     radii = rng.uniform(0.6, 1.6, len(cand)) * 40 * s
@@ -394,7 +398,8 @@ def _render(spec: SequenceSpec, sink: Callable[[int, np.ndarray], None]) -> Rend
                 distractor_in[k] = max(distractor_in[k], float(r[2].sum()) / area)
         outline = _projected_outline(plan.target, G, k)
         lo, hi = outline.min(0), outline.max(0)
-        gt_full[k] = (lo[0], lo[1], hi[0] - lo[0], hi[1] - lo[1])
+        # warpPerspective puts pixel i's centre at i; boxes use pixel i = [i, i+1) (UAV123)
+        gt_full[k] = (lo[0] + 0.5, lo[1] + 0.5, hi[0] - lo[0], hi[1] - lo[1])
         # full silhouette area in image pixels: the sprite's alpha mass times the local area scale
         area = (abs(cv2.contourArea(outline.astype(np.float32))) * plan.target.sprite.alpha_mass
                 / plan.target.sprite.outline_area)

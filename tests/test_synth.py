@@ -1,0 +1,238 @@
+"""Synthetic UAV sequences: exact homographies, ground truth vs the rendered sprite, attribute
+flags from generated facts, determinism, the UAV123 layout on disk and the dataset plugin."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import cv2
+import numpy as np
+import pytest
+
+from mata_eval import synth
+from mata_eval.datasets.annotations import parse_config_seqs, read_attribute_flags, read_boxes
+
+W, H = 160, 120
+
+
+@pytest.fixture(scope="module")
+def cruise():
+    return synth.render_sequence(synth.make_spec(11, 20, W, H, scenario="cruise"))
+
+
+def target_mask(spec: synth.SequenceSpec, with_target: synth.RenderedSequence) -> list[np.ndarray]:
+    """Pixels the target changes: the same scene rendered without it, differenced."""
+    without = synth.render_sequence(dataclasses.replace(spec, draw_target=False))
+    return [np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 12 for a, b in zip(with_target.frames, without.frames)]
+
+
+def test_unpacks_as_frames_gt_homographies_attributes(cruise):
+    frames, gt, hs, attrs = cruise
+    assert len(frames) == 20 and frames[0].shape == (H, W, 3) and frames[0].dtype == np.uint8
+    assert gt.shape == (20, 4) and hs.shape == (20, 3, 3)
+    np.testing.assert_allclose(hs[0], np.eye(3))
+    np.testing.assert_allclose(hs[:, 2, 2], 1.0)
+    assert isinstance(attrs, frozenset) and attrs <= set(synth.UAV123_ATTRIBUTES)
+
+
+def test_true_homography_matches_tracked_ground_points():
+    """cv2.findHomography on LK-tracked corners of frame k-1 -> k agrees with the written H."""
+    r = synth.render_sequence(synth.make_spec(5, 6, 320, 240, scenario="manoeuvre"))
+    grid = np.stack(np.meshgrid(np.linspace(20, 300, 8), np.linspace(20, 220, 6)), -1).reshape(-1, 1, 2)
+    for k in range(1, 6):
+        g0 = cv2.cvtColor(r.frames[k - 1], cv2.COLOR_BGR2GRAY)
+        g1 = cv2.cvtColor(r.frames[k], cv2.COLOR_BGR2GRAY)
+        p0 = cv2.goodFeaturesToTrack(g0, 400, 0.01, 5)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(g0, g1, p0, None, winSize=(21, 21), maxLevel=4)
+        ok = st.ravel() == 1
+        assert ok.sum() > 40
+        Hm, inl = cv2.findHomography(p0[ok], p1[ok], cv2.RANSAC, 1.0)
+        assert inl.sum() > 30
+        a = cv2.perspectiveTransform(grid, Hm)
+        b = cv2.perspectiveTransform(grid, r.homographies[k])
+        assert np.median(np.linalg.norm(a - b, axis=2)) < 0.5, k
+        # and the motion is not trivially small (the check would pass for any H near identity)
+    moved = cv2.perspectiveTransform(grid, np.linalg.multi_dot(r.homographies[1:][::-1]))
+    assert np.median(np.linalg.norm(moved - grid, axis=2)) > 3
+
+
+def test_homographies_compose_the_ground_to_image_maps(cruise):
+    G = cruise.ground_to_image
+    for k in range(1, len(G)):
+        M = G[k] @ np.linalg.inv(G[k - 1])
+        np.testing.assert_allclose(cruise.homographies[k], M / M[2, 2], atol=1e-9)
+
+
+@pytest.mark.parametrize("target", ["vehicle", "person"])
+def test_groundtruth_box_is_the_bounding_box_of_the_drawn_sprite(target):
+    spec = dataclasses.replace(synth.make_spec(11, 12, 320, 240, scenario="crowd"), target=target, n_distractors=0)
+    r = synth.render_sequence(spec)
+    masks = target_mask(spec, r)
+    checked = 0
+    for k, m in enumerate(masks):
+        x, y, w, h = r.groundtruth[k]
+        if r.occluded[k] > 0 or x <= 1 or y <= 1 or x + w >= 319 or y + h >= 239:
+            continue
+        ys, xs = np.nonzero(m)
+        assert abs(xs.min() - x) <= 1.5 and abs(ys.min() - y) <= 1.5, k
+        assert abs(xs.max() + 1 - (x + w)) <= 1.5 and abs(ys.max() + 1 - (y + h)) <= 1.5, k
+        checked += 1
+    assert checked >= 10
+
+
+def test_determinism_by_seed(cruise):
+    again = synth.render_sequence(synth.make_spec(11, 20, W, H, scenario="cruise"))
+    assert all(np.array_equal(a, b) for a, b in zip(cruise.frames, again.frames))
+    np.testing.assert_array_equal(cruise.groundtruth, again.groundtruth)
+    np.testing.assert_array_equal(cruise.homographies, again.homographies)
+    assert cruise.attributes == again.attributes
+    other = synth.render_sequence(synth.make_spec(12, 20, W, H, scenario="cruise"))
+    assert not np.array_equal(cruise.frames[0], other.frames[0])
+
+
+def test_out_of_view_spell_gives_ov_and_nan_rows_exactly_where_the_target_is_not_drawn():
+    r = synth.render_sequence(synth.make_spec(3, 40, W, H, scenario="outofview"))
+    nan = ~np.all(np.isfinite(r.groundtruth), axis=1)
+    assert nan.any() and not nan[0]
+    assert "OV" in r.attributes
+    masks = target_mask(r.spec, r)
+    full = max(m.sum() for m in masks)
+    for k in np.flatnonzero(nan):
+        assert masks[k].sum() <= 0.05 * full, k       # nothing (or a sliver) of the target on screen
+    for k in np.flatnonzero(~nan):
+        assert masks[k].any(), k
+
+
+@pytest.mark.parametrize("seed,kind", [(7, "partial"), (8, "full")])
+def test_staged_tree_gives_occlusion_flags_and_nan_rows(seed, kind):
+    r = synth.render_sequence(synth.make_spec(seed, 60, W, H, scenario="occlusion"))
+    assert r.spec.occlusion == kind
+    masks = target_mask(r.spec, r)
+    nan = ~np.all(np.isfinite(r.groundtruth), axis=1)
+    assert "POC" in r.attributes
+    assert ("FOC" in r.attributes) == (kind == "full") == nan.any()
+    # where the target is in the image but fully under the canopy, the scene without it is the same
+    hidden = (r.occluded > 0.99) & (r.visible < 0.01)
+    assert hidden.any() == (kind == "full")
+    for k in np.flatnonzero(hidden):
+        assert not masks[k].any(), k
+        assert nan[k], k
+    # partially covered frames: fewer target pixels drawn than when it is in the open
+    part = np.flatnonzero((r.occluded > 0.3) & (r.occluded < 0.9))
+    clear = np.flatnonzero(r.occluded == 0)
+    assert len(part) and masks[part[0]].sum() < np.median([masks[k].sum() for k in clear])
+
+
+def test_flags_follow_generated_facts():
+    r = synth.render_sequence(synth.make_spec(2, 40, W, H, scenario="crowd"))
+    s = W / 1280
+    gt = r.groundtruth
+    ok = np.all(np.isfinite(gt), axis=1)
+    c = gt[:, :2] + gt[:, 2:] / 2
+    step = np.linalg.norm(np.diff(c, axis=0), axis=1)
+    assert ("FM" in r.attributes) == bool(np.nanmax(step) > 20 * s)
+    assert ("IV" in r.attributes) == r.spec.illumination
+    assert r.spec.n_distractors >= 2 and "SOB" in r.attributes
+    assert ok[0]
+    flags = dict(zip(synth.UAV123_ATTRIBUTES, r.flags))
+    assert {a for a, f in flags.items() if f} == set(r.attributes)
+
+
+def test_suite_specs_names_are_stable_and_independent_of_suite_size():
+    a = synth.suite_specs(7, 20, W, H, seed=4)
+    b = synth.suite_specs(3, 20, W, H, seed=4)
+    assert [s.name for s in a[:3]] == [s.name for s in b]
+    assert a[:3] == b
+    assert {s.name.split("_")[1] for s in a} == set(synth.SCENARIOS)
+    assert synth.suite_specs(3, 20, W, H, seed=5)[0].seed != b[0].seed
+
+
+def test_write_suite_uav123_layout_round_trip(tmp_path):
+    specs = synth.suite_specs(2, 12, W, H, seed=1)
+    root = tmp_path / "suite"
+    names = synth.write_suite(root, specs=specs, jobs=1)
+    assert names == [s.name for s in specs]
+    table = parse_config_seqs(root / "anno" / "UAV123" / "configSeqs.m")["UAV123"]
+    assert list(table) == names and all(len(table[n]) == 12 for n in names)
+    for sp in specs:
+        r = synth.render_sequence(sp)
+        gt = read_boxes(root / "anno" / "UAV123" / f"{sp.name}.txt", allow_polygons=False)
+        np.testing.assert_allclose(gt, r.groundtruth, atol=0.006, equal_nan=True)
+        np.testing.assert_allclose(synth.load_true_homographies(root, sp.name), r.homographies, rtol=1e-8, atol=1e-8)
+        assert read_attribute_flags(root / "anno" / "UAV123" / "att" / f"{sp.name}.txt",
+                                    synth.UAV123_ATTRIBUTES) == r.attributes
+        img = cv2.imread(str(root / "data_seq" / "UAV123" / sp.name / "000012.jpg"))
+        assert img.shape == (H, W, 3)
+        assert np.abs(img.astype(int) - r.frames[11]).mean() < 4  # JPEG of the same frame
+    with pytest.raises(FileExistsError, match="already holds"):
+        synth.write_suite(root, specs=specs, jobs=1)
+
+
+def test_write_suite_is_atomic_on_failure(tmp_path, monkeypatch):
+    calls = []
+
+    def boom(task):
+        calls.append(task)
+        if len(calls) == 2:
+            raise RuntimeError("disk full")
+        return synth._write_frames(task)
+
+    monkeypatch.setattr(synth, "_write_frames", boom)
+    root = tmp_path / "suite"
+    with pytest.raises(RuntimeError, match="disk full"):
+        synth.write_suite(root, specs=synth.suite_specs(2, 4, W, H), jobs=1)
+    assert not root.exists()
+    assert os.listdir(tmp_path) == []
+
+
+def test_load_true_homographies_errors_name_the_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="homography"):
+        synth.load_true_homographies(tmp_path, "nope")
+    d = tmp_path / "anno" / "UAV123" / "homography"
+    d.mkdir(parents=True)
+    (d / "bad.txt").write_text("1,0,0\n")
+    with pytest.raises(ValueError, match="bad.txt"):
+        synth.load_true_homographies(tmp_path, "bad")
+
+
+def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkeypatch):
+    from mata_eval.datasets.synthetic import SyntheticDataset
+    from mata_eval.params import build_params
+    from mata_eval.registry import load_registry
+
+    assert load_registry().get("dataset", "synthetic").cls is SyntheticDataset
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    params = build_params(SyntheticDataset.Params, {"n_sequences": 2, "n_frames": 6, "width": W, "height": H, "seed": 3,
+                                                   "jobs": 1})
+    ds = SyntheticDataset(params)
+    assert ds.root.parent == tmp_path / "cache" / "synthetic"
+    seqs = ds.sequences()
+    assert [s.name for s in seqs] == [s.name for s in synth.suite_specs(2, 6, W, H, seed=3)]
+    marker = ds.root / synth.SUITE_MARKER
+    stamp = marker.stat().st_mtime_ns
+    again = SyntheticDataset(params).sequences()
+    assert marker.stat().st_mtime_ns == stamp  # read, not regenerated
+    for s, t in zip(seqs, again):
+        assert s.attributes == t.attributes and np.array_equal(s.groundtruth, t.groundtruth, equal_nan=True)
+        assert s.meta["homographies"].shape == (6, 3, 3)
+        assert s.image(5).shape == (H, W, 3)
+    other = SyntheticDataset(dataclasses.replace(params, seed=4))
+    assert other.root != ds.root
+    from mata_eval.datasets.annotations import DatasetError
+
+    with pytest.raises(DatasetError, match="seed=3"):
+        SyntheticDataset(dataclasses.replace(params, seed=4, root=str(ds.root))).sequences()
+
+
+def test_cli_synth(tmp_path, capsys):
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    synth.add_cli(parser.add_subparsers())
+    args = parser.parse_args(["synth", str(tmp_path / "out"), "--n-sequences", "1", "--n-frames", "3",
+                              "--width", "64", "--height", "48", "--jobs", "1"])
+    assert args.func(args) == 0
+    assert (tmp_path / "out" / "data_seq" / "UAV123" / "syn001_cruise" / "000003.jpg").is_file()
+    assert args.func(args) == 2  # refuses to overwrite without --force
+    assert "already holds" in capsys.readouterr().out
