@@ -72,3 +72,26 @@ def test_random_weights_are_seeded():
     a = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
     b = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_nanotrack_tracker_on_the_torch_backend_follows_the_published_onnx(paths):
+    from mata_eval.types import Box
+    from mata_eval_plugins.trackers.nanotrack import NanoTrack
+
+    rng = np.random.default_rng(2)
+    base = rng.integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    frames = []
+    for k in range(5):
+        f = base.copy()
+        f[40 + 2 * k:70 + 2 * k, 50 + 3 * k:80 + 3 * k] = (30, 200, 240)
+        frames.append(f)
+    on_torch = NanoTrack(NanoTrack.Params(backend="torch", checkpoint=str(paths["pth"])))
+    on_onnx = NanoTrack(NanoTrack.Params(backbone=str(paths["backbone"]), head=str(paths["head"])))
+    for t in (on_torch, on_onnx):
+        t.initialize(frames[0], Box(50, 40, 30, 30))
+    for f in frames[1:]:
+        a, b = on_torch.track(f), on_onnx.track(f)
+        np.testing.assert_allclose(a.box.as_array(), b.box.as_array(), atol=1.0)
+        assert a.confidence == pytest.approx(b.confidence, abs=1e-3)
+    with pytest.raises(ValueError, match="needs `checkpoint`"):
+        NanoTrack(NanoTrack.Params(backend="torch"))

@@ -179,7 +179,8 @@ class NanoTrack:
     class Params:
         backbone: str | None = param(None, "path to nanotrack_backbone_sim.onnx (or $MATA_NANOTRACK_BACKBONE)")
         head: str | None = param(None, "path to nanotrack_head_sim.onnx (or $MATA_NANOTRACK_HEAD)")
-        backend: Literal["onnxruntime", "tensorrt"] = param("onnxruntime", "inference backend")
+        backend: Literal["onnxruntime", "tensorrt", "torch"] = param("onnxruntime", "inference backend ('torch' runs `checkpoint`)")
+        checkpoint: str | None = param(None, "torch backend: nanotrackv2.pth (loaded weights-only)")
         device: Literal["cpu", "cuda", "tensorrt"] = param("cpu", "ONNX Runtime device / provider")
         threads: int = param(1, "ONNX Runtime intra-op threads (0 = library default)")
         window_influence: float = param(0.455, "cosine window weight (cv2.TrackerNano)")
@@ -193,8 +194,12 @@ class NanoTrack:
 
     def __init__(self, params: "NanoTrack.Params | None" = None):
         self.params = params or self.Params()
-        self._backbone_path = resolve_model("nanotrack_backbone", self.params.backbone)
-        self._head_path = resolve_model("nanotrack_head", self.params.head)
+        if self.params.backend == "torch":
+            if not self.params.checkpoint:
+                raise ValueError("nanotrack: the torch backend needs `checkpoint` (nanotrackv2.pth)")
+        else:
+            self._backbone_path = resolve_model("nanotrack_backbone", self.params.backbone)
+            self._head_path = resolve_model("nanotrack_head", self.params.head)
         self._nets = None
         self._hann = cv2.createHanningWindow((SCORE_SIZE, SCORE_SIZE), cv2.CV_32F)
         grid = (np.arange(SCORE_SIZE) - SCORE_SIZE // 2) * STRIDE + INSTANCE // 2
@@ -203,6 +208,10 @@ class NanoTrack:
         self._pos: np.ndarray | None = None
 
     def _networks(self):
+        if self._nets is None and self.params.backend == "torch":
+            from .nanotrack_torch import torch_runners
+
+            self._nets = torch_runners(self.params.checkpoint, threads=self.params.threads)
         if self._nets is None:
             from .backends import open_onnx
 

@@ -278,3 +278,25 @@ def load_nanotrack_v2(path: str | Path, trust_pickle: bool = False) -> NanoTrack
                          f"unexpected {unexpected[:5]}, shape mismatches {shapes[:5]}")
     model.load_state_dict(sd, strict=True)
     return model.eval()
+
+
+def torch_runners(checkpoint: str | Path, trust_pickle: bool = False, threads: int = 0):
+    """The backbone and head as ``run(feeds) -> outputs`` callables with the published ONNX
+    pair's names (``input`` -> ``output``; ``input1``, ``input2`` -> ``output1``, ``output2``), so
+    the ``nanotrack`` tracker runs on torch with its ONNX pre/post-processing unchanged."""
+    import numpy as np
+
+    if threads > 0:
+        torch.set_num_threads(threads)
+    model = load_nanotrack_v2(checkpoint, trust_pickle)
+
+    def backbone(feeds):
+        with torch.inference_mode():
+            return {"output": model.backbone(torch.from_numpy(np.ascontiguousarray(feeds["input"]))).numpy()}
+
+    def head(feeds):
+        with torch.inference_mode():
+            cls, loc = model.ban_head(torch.from_numpy(feeds["input1"]), torch.from_numpy(feeds["input2"]))
+        return {"output1": cls.numpy(), "output2": loc.numpy()}
+
+    return backbone, head
