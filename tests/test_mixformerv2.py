@@ -275,6 +275,17 @@ def test_window_confidence_on_hand_built_pmfs():
         np.testing.assert_allclose(out.pmfs, np.asarray(pmfs), atol=1e-12)
 
 
+def test_pmf_spread_in_image_pixels():
+    """Two modes of 1/2 at bins 3 and 11: sd = 4 bins. Crop side ceil(sqrt(20 * 20) * 4.5) = 90 px
+    over 16 bins -> 5.625 px per bin -> 22.5 px; a delta has no spread."""
+    two_modes = np.zeros(N)
+    two_modes[[3, 11]] = 0.5
+    _, outs = _run([([two_modes, _delta(2), _delta(5), _delta(9)], 0.0)], template_update="none")
+    extra = outs[0].extra
+    assert extra["sigma_left"] == pytest.approx(22.5)
+    assert extra["sigma_top"] == extra["sigma_right"] == extra["sigma_bottom"] == pytest.approx(0.0, abs=1e-6)
+
+
 def test_paper_alpha_window_is_three_bins_of_96():
     global N
     p = np.zeros(96)
