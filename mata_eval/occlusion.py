@@ -229,6 +229,21 @@ def plan_occlusions(groundtruth: np.ndarray, image_size: tuple[int, int], params
 
 # --- masks and compositing ------------------------------------------------------------------------
 
+def _polygon_mask(poly: np.ndarray, x0: int, y0: int, w: int, h: int, out: np.ndarray) -> None:
+    """OR into ``out`` (h, w) the pixels of ``[x0, x0+w) x [y0, y0+h)`` whose centre (i + 0.5)
+    lies inside ``poly``. The polygon is rasterised in its own bounding box, where it is never
+    clipped, so the result does not depend on the window asked for."""
+    bx0, by0 = np.floor(poly.min(0)).astype(int) - 1
+    bx1, by1 = np.ceil(poly.max(0)).astype(int) + 2
+    ix0, iy0, ix1, iy1 = max(bx0, x0), max(by0, y0), min(bx1, x0 + w), min(by1, y0 + h)
+    if ix1 <= ix0 or iy1 <= iy0:
+        return
+    canvas = np.zeros((by1 - by0, bx1 - bx0), np.uint8)
+    pts = np.round((poly - [bx0 + 0.5, by0 + 0.5]) * (1 << _SHIFT)).astype(np.int32)
+    cv2.fillPoly(canvas, [pts], 1, cv2.LINE_8, shift=_SHIFT)
+    out[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] |= canvas[iy0 - by0:iy1 - by0, ix0 - bx0:ix1 - bx0]
+
+
 def occluder_mask(events: Seq[OcclusionEvent], k: int, x0: int, y0: int, w: int, h: int) -> np.ndarray:
     """(h, w) uint8 0/1 mask of the occluders active at frame k over the pixel rectangle
     ``[x0, x0+w) x [y0, y0+h)``: a pixel is covered when its centre lies inside an occluder."""
@@ -237,9 +252,7 @@ def occluder_mask(events: Seq[OcclusionEvent], k: int, x0: int, y0: int, w: int,
         return mask
     for e in events:
         if e.active(k):
-            # pixel (i, j) has its centre at (x0 + i + 0.5 - 0.5) in fillPoly's integer-centre frame
-            pts = np.round((e.outline(k) - [x0 + 0.5, y0 + 0.5]) * (1 << _SHIFT)).astype(np.int32)
-            cv2.fillPoly(mask, [pts], 1, cv2.LINE_8, shift=_SHIFT)
+            _polygon_mask(e.outline(k), x0, y0, w, h, mask)
     return mask
 
 
