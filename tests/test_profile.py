@@ -1,0 +1,228 @@
+"""``mata-eval profile``: a tracker that sleeps a known time gets latency percentiles near that
+time; the written profile reads back and drives an ``eop`` run whose tracker starts follow the
+hand-computed timeline; warm-up calls are not timed; the machine is described."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import textwrap
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from mata_eval.config import load_experiment
+from mata_eval.params import param
+from mata_eval.profile import add_cli, back_and_forth, describe_machine, profile_run, time_blocks
+from mata_eval.registry import PluginEntry, Registry, load_registry
+from mata_eval.runner import run_experiment
+from mata_eval.sequence import Sequence
+from mata_eval.timing_profile import read_profile
+from mata_eval.types import Box, Estimate, Motion, TrackerOutput
+
+
+class Frames:
+    """One sequence of ``n`` 8x8 frames at ``fps``; frame k is filled with k."""
+
+    name = "frames"
+
+    @dataclass(frozen=True)
+    class Params:
+        n: int = param(32, "frames")
+        fps: float = param(32.0, "frame rate")
+
+    def __init__(self, params):
+        self.params = params
+
+    def sequences(self):
+        gt = np.tile([1.0, 1.0, 4.0, 4.0], (self.params.n, 1))
+        return [Sequence("seqA", gt, self.params.fps, loader=lambda k: np.full((8, 8, 3), k, np.uint8))]
+
+
+class SleepTracker:
+    """Sleeps ``sleep_s`` per track() call (a real wall-clock cost)."""
+
+    name = "sleeper"
+
+    @dataclass(frozen=True)
+    class Params:
+        sleep_s: float = param(0.02, "seconds per call")
+
+    def __init__(self, params):
+        self.params = params
+
+    def initialize(self, image, box):
+        pass
+
+    def track(self, image, prior=None):
+        time.sleep(self.params.sleep_s)
+        return TrackerOutput(Box(float(image[0, 0, 0]), 0.0, 4.0, 4.0), 0.5)
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+
+class CostTracker:
+    """Advances a fake clock by ``costs[i]`` at its i-th track() call; logs the frames it saw."""
+
+    def __init__(self, clock, costs):
+        self.clock, self.costs, self.seen = clock, list(costs), []
+
+    def initialize(self, image, box):
+        self.clock.now += 100.0     # initialisation is never timed
+
+    def track(self, image, prior=None):
+        self.clock.now += self.costs[len(self.seen)]
+        self.seen.append(int(image[0, 0, 0]))
+        return TrackerOutput(Box(1.0, 1.0, 4.0, 4.0), 0.5)
+
+
+class CountingEgo:
+    def __init__(self):
+        self.seen = []
+
+    def initialize(self, image):
+        self.seen.append(int(image[0, 0, 0]))
+
+    def estimate(self, image):
+        self.seen.append(int(image[0, 0, 0]))
+        return Motion.identity()
+
+
+class RecordingEstimator:
+    def __init__(self):
+        self.calls = []
+
+    def initialize(self, box, t):
+        return Estimate(box)
+
+    def step(self, t, motions=(), detections=()):
+        self.calls.append((t, len(motions), len(detections)))
+        return Estimate(detections[-1].value.box)
+
+
+def _registry():
+    real = load_registry()
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")  # noqa: E731
+    return Registry({"dataset": {"frames": entry("dataset", Frames)},
+                     "tracker": {"sleeper": entry("tracker", SleepTracker)},
+                     "egomotion": {}, "estimator": {},
+                     "protocol": {"eop": real.plugins["protocol"]["eop"]}}, ())
+
+
+def test_back_and_forth_keeps_neighbours():
+    assert back_and_forth(5, 10) == [1, 2, 3, 4, 3, 2, 1, 2, 3, 4]
+    assert back_and_forth(2, 3) == [1, 1, 1]
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        back_and_forth(1, 3)
+
+
+def test_warmup_is_not_timed_and_every_block_is_fed():
+    seq = Frames(Frames.Params(n=4, fps=10.0)).sequences()[0]
+    clock = FakeClock()
+    costs = [5.0, 5.0] + [0.01 * (i + 1) for i in range(6)]     # two slow warm-up calls
+    tracker, ego, est = CostTracker(clock, costs), CountingEgo(), RecordingEstimator()
+    samples = time_blocks(seq, tracker, ego, est, frames=6, warmup=2, clock=clock)
+    np.testing.assert_allclose(samples["tracker"], [0.01, 0.02, 0.03, 0.04, 0.05, 0.06])
+    assert tracker.seen == [1, 2, 3, 2, 1, 2, 3, 2]
+    assert ego.seen == [0, 1, 2, 3, 2, 1, 2, 3, 2]
+    assert len(samples["egomotion"]) == 6 and len(samples["estimator"]) == 6
+    # The estimator gets one motion and one detection per call, at increasing camera times.
+    assert [c[1:] for c in est.calls] == [(1, 1)] * 8
+    np.testing.assert_allclose([c[0] for c in est.calls], np.arange(1, 9) / 10.0)
+
+
+def test_sleeping_tracker_profile_is_near_its_sleep(tmp_path):
+    path = tmp_path / "exp.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: frames, n: 12}}
+        tracker: {{name: sleeper, sleep_s: 0.02}}
+        protocol: {{name: eop}}
+        """))
+    spec = load_experiment(path, _registry()).runs[0]
+    prof = profile_run(spec, frames=10, warmup=2)
+    b = prof.block("tracker")
+    assert len(b.samples_s) == 10
+    p = b.percentiles_s((50, 90))
+    assert 0.02 <= p["50"] < 0.035            # sleep() never returns early; a loaded machine adds a little
+    assert b.rate_hz == pytest.approx(1.0 / np.mean(b.samples_s))
+    assert set(prof.blocks) == {"tracker"}    # no ego-motion or estimator in this run
+    assert prof.machine["run"]["tracker"]["sleep_s"] == 0.02
+
+
+def test_profile_file_drives_an_eop_run(tmp_path, monkeypatch):
+    # A profile with exactly known latencies: 0.125 s per call (rate 8 Hz), measured on a fake clock.
+    seq = Frames(Frames.Params()).sequences()[0]
+    clock = FakeClock()
+    samples = time_blocks(seq, CostTracker(clock, [0.125] * 12), frames=10, warmup=2, clock=clock)
+    from mata_eval.timing_profile import profile_from_samples, write_profile
+
+    prof_path = write_profile(profile_from_samples(samples, describe_machine()), tmp_path / "prof.json")
+    back = read_profile(prof_path)
+    assert back.block("tracker").rate_hz == pytest.approx(8.0)
+    assert back.block("tracker").percentiles_s()["99"] == pytest.approx(0.125)
+
+    exp = tmp_path / "exp.yaml"
+    exp.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: frames}}
+        tracker: {{name: sleeper, sleep_s: 0.0}}
+        matrix:
+          protocol:
+            rate: {{name: eop, tracker_hz: profile, tracker_latency: profile, latency_profile: {prof_path}}}
+            fast: {{name: eop, tracker_hz: 16, tracker_latency: profile, latency_profile: {prof_path}}}
+        """))
+    experiment = load_experiment(exp, _registry())
+    outcomes = run_experiment(experiment, jobs=1, progress=False, log=lambda s: None)
+    assert {o.status for o in outcomes} == {"done"}
+
+    def starts(run):
+        with open(tmp_path / "out" / run / "seqA.trace.csv") as f:
+            rows = [r for r in csv.DictReader(f) if r["block"] == "tracker"]
+        return ([int(r["frame"]) for r in rows if r["event"] == "start"],
+                [int(r["frame"]) for r in rows if r["event"] == "skip"])
+
+    # 8 Hz on a 32 fps camera: a turn every 4 frames; each call is busy 0.125 s = 4 frames, so
+    # every turn starts: frames 0, 4, ..., 28.
+    assert starts("rate") == (list(range(0, 32, 4)), [])
+    # 16 Hz turns (every 2 frames) but a call still takes 0.125 s: every other turn is skipped.
+    assert starts("fast") == (list(range(0, 32, 4)), list(range(2, 32, 4)))
+
+
+def test_cli_writes_the_profile_and_asks_for_a_run(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "exp.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: frames, n: 6}}
+        tracker: {{name: sleeper, sleep_s: 0.001}}
+        matrix:
+          protocol:
+            a: {{name: eop}}
+            b: {{name: eop, tracker_hz: 10}}
+        """))
+    import mata_eval.config as config
+
+    real_load = config.load_experiment
+    monkeypatch.setattr(config, "load_experiment", lambda p, registry=None: real_load(p, _registry()))
+    parser = argparse.ArgumentParser()
+    add_cli(parser.add_subparsers())
+    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "p.yaml"), "--frames", "5", "--warmup", "1"])
+    assert args.func(args) == 2 and "choose one with --run (runs: a, b)" in capsys.readouterr().err
+    args = parser.parse_args(["profile", str(path), "--run", "b", "--out", str(tmp_path / "p.yaml"),
+                              "--frames", "5", "--warmup", "1"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "tracker" in out and "rate Hz" in out
+    prof = read_profile(tmp_path / "p.yaml")
+    assert len(prof.block("tracker").samples_s) == 5
+    m = prof.machine
+    assert m["cpu"] and m["threads"]["cpu_count"] >= 1 and "numpy" in m["versions"]
+    assert m["run"]["run"] == "b" and m["run"]["sequence"] == "seqA"
