@@ -1,0 +1,233 @@
+"""MATA block B (paper section 2.2): points on a regular grid tracked by pyramidal Lucas-Kanade
+from frame k-1 to frame k, low-contrast points dropped (minimum eigenvalue of the LK gradient
+matrix), an optional forward-backward check, RANSAC for the inlier set, a least-squares refit on
+the inliers, and the first-order covariance of the homography (H&Z Result 5.10)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from mata_eval.hooks import hookimpl
+from mata_eval.params import param
+from mata_eval.types import Motion
+
+from . import homography_covariance as hc
+
+
+_TARGET_MEAN, _TARGET_STD, _MAX_GAIN = 128.0, 48.0, 4.0
+
+
+def normalise_intensity(gray: np.ndarray) -> np.ndarray:
+    """Global gain and offset taken out (mean 128, std 48, saturated to uint8): Lucas-Kanade
+    assumes brightness constancy, which auto-exposure and illumination changes break. A constant
+    image is returned unchanged; the gain is capped at 4 so that sensor noise on a nearly
+    uniform image is not blown up into texture."""
+    mean, std = cv2.meanStdDev(gray)
+    std = float(std.ravel()[0])
+    if std < 1e-6:
+        return gray
+    gain = min(_TARGET_STD / std, _MAX_GAIN)
+    lut = np.clip(np.arange(256) * gain + (_TARGET_MEAN - gain * float(mean.ravel()[0])), 0, 255)
+    return cv2.LUT(gray, np.rint(lut).astype(np.uint8))
+
+
+def prepare_gray(image: object, downscale: float, normalise: bool = False) -> np.ndarray | None:
+    """Grey uint8 image shrunk by ``downscale`` (area interpolation), optionally with its global
+    gain and offset normalised, or None for input that is not an image (wrong type, dtype,
+    shape, empty)."""
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.size == 0:
+        return None
+    if image.ndim == 3 and image.shape[2] == 3:
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        gray = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    elif image.ndim == 3 and image.shape[2] == 1:
+        gray = image[:, :, 0]
+    elif image.ndim == 2:
+        gray = image
+    else:
+        return None
+    h, w = gray.shape
+    if downscale > 1.0:
+        size = (max(1, round(w / downscale)), max(1, round(h / downscale)))
+        gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+    gray = np.ascontiguousarray(gray)
+    return normalise_intensity(gray) if normalise else gray
+
+
+def to_full_resolution(pts: np.ndarray, small_shape: tuple[int, ...], full_shape: tuple[int, ...]) -> np.ndarray:
+    """Pixel coordinates in the shrunk image to the full image, with OpenCV's resize convention
+    (pixel centres at integers): ``x = s (x_small + 0.5) - 0.5``, ``s = W / w``."""
+    sx = full_shape[1] / small_shape[1]
+    sy = full_shape[0] / small_shape[0]
+    out = np.asarray(pts, dtype=float).reshape(-1, 2).copy()
+    out[:, 0] = sx * (out[:, 0] + 0.5) - 0.5
+    out[:, 1] = sy * (out[:, 1] + 0.5) - 0.5
+    return out
+
+
+def grid_points(width: int, height: int, cols: int, rows: int) -> np.ndarray:
+    """(cols * rows, 1, 2) float32 cell centres ``((i + 0.5) W / cols, (j + 0.5) H / rows)``."""
+    xs = (np.arange(cols) + 0.5) * width / cols
+    ys = (np.arange(rows) + 0.5) * height / rows
+    return np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2).astype(np.float32)
+
+
+def _ransac(src: np.ndarray, dst: np.ndarray, model: str, threshold: float, max_iters: int,
+            confidence: float) -> np.ndarray | None:
+    """Inlier mask of OpenCV's RANSAC for the model (its internal RNG has a fixed seed, so the
+    result is deterministic), or None when it fails."""
+    s, d = src.astype(np.float32), dst.astype(np.float32)
+    if model == "homography":
+        H, mask = cv2.findHomography(s, d, cv2.RANSAC, threshold, maxIters=max_iters, confidence=confidence)
+        ok = H is not None
+    else:
+        estimator = {"affine": cv2.estimateAffine2D, "similarity": cv2.estimateAffinePartial2D,
+                     "translation": cv2.estimateTranslation2D}[model]
+        M, mask = estimator(s, d, method=cv2.RANSAC, ransacReprojThreshold=threshold,
+                            maxIters=max_iters, confidence=confidence)
+        ok = M is not None
+    if not ok or mask is None:
+        return None
+    return mask.reshape(-1).astype(bool)
+
+
+def robust_fit(src: np.ndarray, dst: np.ndarray, model: str = "homography", threshold: float = 3.0,
+               min_inliers: int = 20, max_iters: int = 2000, confidence: float = 0.995,
+               image_size: tuple[int, int] | None = None) -> Motion:
+    """RANSAC inlier set, least-squares refit on the inliers (RANSAC's own output is not the
+    converged ML fit the covariance formula assumes: reference notes section 4.3), residual
+    noise and covariance. ``src`` are exact points, ``dst`` their tracked positions (pixels).
+    Returns ``Motion.invalid()`` when there are too few points or inliers, the fit fails, the
+    points are degenerate, or (with ``image_size = (W, H)``) an image corner maps to infinity."""
+    src = np.asarray(src, dtype=float).reshape(-1, 2)
+    dst = np.asarray(dst, dtype=float).reshape(-1, 2)
+    need = max(int(min_inliers), hc.min_points(model) + 1)
+    if len(src) < need:
+        return Motion.invalid()
+    try:
+        inl = _ransac(src, dst, model, threshold, max_iters, confidence)
+        if inl is None or inl.sum() < need:
+            return Motion.invalid()
+        s, d = src[inl], dst[inl]
+        if model == "homography":
+            H, _ = cv2.findHomography(s, d, 0)
+            if H is None:
+                return Motion.invalid()
+        else:
+            H = hc.fit_least_squares(s, d, model)
+        if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+            return Motion.invalid()
+        H = H / H[2, 2]
+        if image_size is not None:
+            w, h = image_size
+            corners = np.array([[0, 0, 1], [w - 1, 0, 1], [w - 1, h - 1, 1], [0, h - 1, 1]], float)
+            if np.any(corners @ H[2] <= 1e-6):
+                return Motion.invalid()
+        sigma = hc.residual_sigma(H, s, d, model)
+        cov = hc.homography_covariance(H, s, sigma, model)
+    except (cv2.error, np.linalg.LinAlgError):
+        return Motion.invalid()
+    if not (np.isfinite(sigma) and np.all(np.isfinite(cov))):
+        return Motion.invalid()
+    return Motion(H=H, cov=cov, inliers=int(inl.sum()), sigma=float(sigma), valid=True)
+
+
+class GridLK:
+    """Grid Lucas-Kanade + RANSAC homography with first-order covariance (MATA block B)."""
+
+    name = "grid_lk"
+
+    @dataclass(frozen=True)
+    class Params:
+        grid_cols: int = param(16, "grid points across the image")
+        grid_rows: int = param(16, "grid points down the image")
+        downscale: float = param(2.0, "divide the image size by this before LK (1 = full resolution)")
+        model: Literal["homography", "affine", "similarity", "translation"] = param(
+            "homography", "motion model fitted to the tracked points")
+        win_size: int = param(21, "LK window side (pixels of the shrunk image)")
+        max_level: int = param(3, "LK pyramid levels above the base image")
+        max_iter: int = param(30, "LK iterations per pyramid level")
+        epsilon: float = param(0.01, "LK stops when an update moves less than this (px)")
+        min_eig: float = param(1e-3, "drop low-contrast points: LK's minEigThreshold (minimum eigenvalue "
+                                     "of the 2x2 gradient matrix over the window area; OpenCV's default 1e-4)")
+        normalise: bool = param(True, "normalise each image's global gain and offset before LK "
+                                      "(illumination / auto-exposure changes)")
+        fb_threshold: float | None = param(
+            None, "forward-backward check: drop points whose backward track misses the start by "
+                  "more than this (px of the shrunk image); null = no check")
+        ransac_threshold: float = param(3.0, "RANSAC inlier threshold (px, full resolution)")
+        ransac_iters: int = param(2000, "RANSAC iterations at most")
+        ransac_confidence: float = param(0.995, "RANSAC confidence")
+        min_inliers: int = param(20, "fewer inliers than this gives an invalid motion")
+
+        def __post_init__(self) -> None:
+            if self.grid_cols < 2 or self.grid_rows < 2:
+                raise ValueError(f"grid_cols and grid_rows must be >= 2, got {self.grid_cols}x{self.grid_rows}")
+            if not self.downscale >= 1.0:
+                raise ValueError(f"downscale must be >= 1, got {self.downscale}")
+            if self.win_size < 3 or self.win_size % 2 == 0:
+                raise ValueError(f"win_size must be an odd number >= 3, got {self.win_size}")
+            if self.max_level < 0 or self.max_iter < 1 or not self.epsilon > 0:
+                raise ValueError("max_level must be >= 0, max_iter >= 1 and epsilon > 0")
+            if not self.min_eig >= 0:
+                raise ValueError(f"min_eig must be >= 0, got {self.min_eig}")
+            if self.fb_threshold is not None and not self.fb_threshold > 0:
+                raise ValueError(f"fb_threshold must be > 0 or null, got {self.fb_threshold}")
+            if not self.ransac_threshold > 0 or self.ransac_iters < 1 or not 0 < self.ransac_confidence < 1:
+                raise ValueError("ransac_threshold must be > 0, ransac_iters >= 1, 0 < ransac_confidence < 1")
+            if self.min_inliers < 1:
+                raise ValueError(f"min_inliers must be >= 1, got {self.min_inliers}")
+
+    def __init__(self, params: Params | None = None):
+        self.params = params if params is not None else self.Params()
+        self._prev: np.ndarray | None = None
+        self._full_shape: tuple[int, ...] = ()
+        self._grid_cache: tuple[tuple[int, ...], np.ndarray] | None = None
+
+    def initialize(self, image: np.ndarray) -> None:
+        self._take(image)
+
+    def estimate(self, image: np.ndarray) -> Motion:
+        """Motion from the previous image to this one; this image becomes the previous one."""
+        prev, prev_full = self._prev, self._full_shape
+        cur = self._take(image)
+        if prev is None or cur is None or prev.shape != cur.shape or prev_full != self._full_shape:
+            return Motion.invalid()
+        p = self.params
+        pts = self._grid(cur.shape)
+        lk = dict(winSize=(p.win_size, p.win_size), maxLevel=p.max_level,
+                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, p.max_iter, p.epsilon))
+        nxt, status, _ = cv2.calcOpticalFlowPyrLK(prev, cur, pts, None, minEigThreshold=p.min_eig, **lk)
+        good = status.reshape(-1) == 1
+        if p.fb_threshold is not None and good.any():
+            back, st_b, _ = cv2.calcOpticalFlowPyrLK(cur, prev, nxt[good], None, **lk)
+            fb_err = np.linalg.norm((back - pts[good]).reshape(-1, 2), axis=1)
+            good[np.flatnonzero(good)] = (st_b.reshape(-1) == 1) & (fb_err < p.fb_threshold)
+        src = to_full_resolution(pts[good], cur.shape, self._full_shape)
+        dst = to_full_resolution(nxt[good], cur.shape, self._full_shape)
+        finite = np.all(np.isfinite(dst), axis=1)
+        return robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold, p.min_inliers,
+                          p.ransac_iters, p.ransac_confidence,
+                          image_size=(self._full_shape[1], self._full_shape[0]))
+
+    def _take(self, image: object) -> np.ndarray | None:
+        gray = prepare_gray(image, self.params.downscale, self.params.normalise)
+        self._prev = gray
+        self._full_shape = tuple(image.shape[:2]) if gray is not None else ()  # type: ignore[union-attr]
+        return gray
+
+    def _grid(self, shape: tuple[int, ...]) -> np.ndarray:
+        if self._grid_cache is None or self._grid_cache[0] != shape:
+            p = self.params
+            self._grid_cache = (shape, grid_points(shape[1], shape[0], p.grid_cols, p.grid_rows))
+        return self._grid_cache[1]
+
+
+@hookimpl
+def mata_eval_egomotion():
+    return [GridLK]
