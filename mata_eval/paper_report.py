@@ -379,6 +379,42 @@ def embedded_table(runs: Sequence[PlacedRun]) -> PaperTable:
                       notes)
 
 
+def sequence_comparison(base: RunScores, other: RunScores) -> PaperTable:
+    """Per-sequence evidence for a pair of runs (e.g. baseline and MATA): attributes, SR and NT2F
+    of each, their difference in points, and the frame of the first failure (NT2F's T_f; "-"
+    when the tracker never failed). Sequences in both runs, in the base run's order; the last
+    row is the mean (the tables' value)."""
+    common = [s for s in base.sequences if s in other.sequences]
+    if not common:
+        raise PlacementError(f"runs {base.name!r} and {other.name!r} have no sequence in common")
+    rows = []
+
+    def ff(v):
+        return "-" if v is None else str(v)
+
+    for s in common:
+        a, b = base.sequences[s], other.sequences[s]
+        attrs = " ".join(sorted(base.attributes.get(s, ())))
+        rows.append([s, attrs, _pct(a.sr), _pct(b.sr), _signed(b.sr - a.sr), _pct(a.nt2f), _pct(b.nt2f),
+                     _signed(b.nt2f - a.nt2f), ff(a.failure_frame), ff(b.failure_frame)])
+
+    def mean(run, m):
+        vals = [getattr(run.sequences[s], m) for s in common]
+        vals = [v for v in vals if math.isfinite(v)]
+        return sum(vals) / len(vals) if vals else float("nan")
+
+    ma, mb = {m: mean(base, m) for m in ("sr", "nt2f")}, {m: mean(other, m) for m in ("sr", "nt2f")}
+    rows.append([f"mean ({len(common)})", "", _pct(ma["sr"]), _pct(mb["sr"]), _signed(mb["sr"] - ma["sr"]),
+                 _pct(ma["nt2f"]), _pct(mb["nt2f"]), _signed(mb["nt2f"] - ma["nt2f"]), "", ""])
+    return PaperTable("sequences", f"Per sequence: {base.name} (A) against {other.name} (B).",
+                      ["Sequence", "Attributes"], [("SR", 3), ("NT2F", 3), ("First failure", 2)],
+                      ["A", "B", "B-A", "A", "B", "B-A", "A", "B"], rows, [len(rows) - 1])
+
+
+def _signed(v: float) -> str:
+    return "-" if not math.isfinite(v) else f"{100.0 * v:+.1f}"
+
+
 BUILDERS: dict[str, Callable[[Sequence[PlacedRun]], PaperTable]] = {
     "protocols": protocols_table, "challenges": challenges_table,
     "ablation": ablation_table, "embedded": embedded_table,
@@ -665,4 +701,22 @@ def cmd_paper(args: argparse.Namespace) -> int:
     if args.out:
         for p in write_paper_report(sections, Path(args.out), plots=not args.no_plots):
             print(f"wrote {p}")
+    return 0
+
+
+def cmd_per_sequence(args: argparse.Namespace) -> int:
+    """``mata-eval report --per-sequence A B``: the per-sequence comparison of two runs."""
+    import sys
+
+    from .report import ScoresUnavailable, scores_for
+
+    if len(args.run_dirs) != 2:
+        print(f"error: --per-sequence compares exactly two run folders, got {len(args.run_dirs)}", file=sys.stderr)
+        return 2
+    try:
+        t = sequence_comparison(scores_for(Path(args.run_dirs[0])), scores_for(Path(args.run_dirs[1])))
+    except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(render_paper_table(t, "latex" if args.format == "latex" else "markdown"))
     return 0

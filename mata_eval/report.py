@@ -337,6 +337,10 @@ def scores_for(run_dir: Path) -> RunScores:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    if getattr(args, "per_sequence", False):
+        from .paper_report import cmd_per_sequence
+
+        return cmd_per_sequence(args)
     if getattr(args, "paper", None) or getattr(args, "experiment", None):
         from .paper_report import cmd_paper
 
@@ -395,4 +399,7 @@ def add_cli(subparsers) -> None:
     p.add_argument("--experiment", action="append", metavar="EXP.yaml",
                    help="report every run folder of this experiment file (repeatable: one HTML page with "
                         "several tables)")
+    p.add_argument("--per-sequence", action="store_true",
+                   help="two run folders A B: SR, NT2F and first failure frame of each sequence side by side "
+                        "(Markdown, or LaTeX with --format latex)")
     p.set_defaults(func=cmd_report)

@@ -252,3 +252,16 @@ def test_report_cli_experiment_files(tmp_path, capsys):
     other.write_text(exp.read_text().replace("name: protocols", "name: other"))
     assert cli.main(["report", "--experiment", str(other)]) == 2
     assert "not one of the paper's tables" in capsys.readouterr().err
+
+
+def test_per_sequence_comparison_cli(tmp_path, capsys):
+    a = make_run(tmp_path, "a", config(), {"s1": 4, "s2": 20}, attrs={"s1": ("POC",)})
+    b = make_run(tmp_path, "b", config(mata=True), {"s1": 10, "s2": 16}, attrs={"s1": ("POC",)})
+    assert cli.main(["report", "--per-sequence", str(a), str(b)]) == 0
+    rows = md_rows(capsys.readouterr().out)
+    assert rows[0] == ["Sequence", "Attributes", "SR A", "SR B", "SR B-A", "NT2F A", "NT2F B", "NT2F B-A",
+                       "First failure A", "First failure B"]
+    assert rows[2] == ["s1", "POC", "20.0", "50.0", "+30.0", "20.0", "50.0", "+30.0", "4", "10"]
+    assert rows[3] == ["s2", "", "100.0", "80.0", "-20.0", "100.0", "80.0", "-20.0", "-", "16"]
+    assert rows[4] == ["mean (2)", "", "60.0", "65.0", "+5.0", "60.0", "65.0", "+5.0", "", ""]
+    assert cli.main(["report", "--per-sequence", str(a)]) == 2
