@@ -1,0 +1,218 @@
+"""Block B plugins (grid_lk, features, identity): recovered homographies against the exact ones
+of the synthetic sequences and of known warps, BoT-SORT's OpenCV pipeline as a reference for
+`features`, degenerate input, real footage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from mata_eval import synth
+from mata_eval.errors import ConfigError
+from mata_eval.interfaces import EgoMotion
+from mata_eval.params import build_params
+from mata_eval.registry import load_registry
+from mata_eval_plugins.egomotion import homography_covariance as hc
+from mata_eval_plugins.egomotion.features import FeatureLK
+from mata_eval_plugins.egomotion.grid_lk import GridLK
+from mata_eval_plugins.egomotion.identity import IdentityMotion
+
+W, H = 320, 180
+
+
+@pytest.fixture(scope="module")
+def ground() -> np.ndarray:
+    """A textured aerial frame (640x360) from the synthetic generator: the source of warps."""
+    return synth.render_sequence(synth.make_spec(7, 2, 640, 360, scenario="cruise")).frames[0]
+
+
+def warp(image: np.ndarray, Hm: np.ndarray) -> np.ndarray:
+    return cv2.warpPerspective(image, Hm, (image.shape[1], image.shape[0]), flags=cv2.INTER_LINEAR,
+                               borderMode=cv2.BORDER_REFLECT)
+
+
+def about_centre(A: np.ndarray, w: int, h: int) -> np.ndarray:
+    """The transform A applied about the image centre."""
+    c = np.array([[1, 0, (w - 1) / 2], [0, 1, (h - 1) / 2], [0, 0, 1.0]])
+    return c @ A @ np.linalg.inv(c)
+
+
+def test_registry_lists_the_three_plugins() -> None:
+    reg = load_registry()
+    plugins = reg.plugins["egomotion"]
+    for name, cls in (("grid_lk", GridLK), ("features", FeatureLK), ("identity", IdentityMotion)):
+        assert plugins[name].cls is cls
+        assert isinstance(cls(), EgoMotion)
+
+
+@pytest.mark.parametrize("scenario", ["cruise", "manoeuvre", "crowd"])
+def test_grid_lk_recovers_the_synthetic_homographies(scenario: str) -> None:
+    r = synth.render_sequence(synth.make_spec(11, 10, W, H, scenario=scenario))
+    m = GridLK()
+    m.initialize(r.frames[0])
+    errors = []
+    for k in range(1, len(r.frames)):
+        mo = m.estimate(r.frames[k])
+        assert mo.valid, f"frame {k}"
+        assert mo.H[2, 2] == 1.0 and mo.cov.shape == (9, 9) and mo.inliers >= 100
+        errors.append(hc.corner_transfer_error(mo.H, r.homographies[k], W, H))
+    assert np.mean(errors) < 0.3 and max(errors) < 1.0, errors
+
+
+def test_grid_lk_survives_an_out_of_view_pan_and_recovers() -> None:
+    """Quick pans beyond LK's reach give invalid motions (or accurate ones), never a wrong valid one."""
+    r = synth.render_sequence(synth.make_spec(11, 12, W, H, scenario="outofview"))
+    big = [k for k in range(1, 12)
+           if np.linalg.norm(hc.project(r.homographies[k], [[W / 2, H / 2]]) - [W / 2, H / 2]) > 50]
+    assert big, "the scenario should contain a quick pan"
+    m = GridLK()
+    m.initialize(r.frames[0])
+    for k in range(1, len(r.frames)):
+        mo = m.estimate(r.frames[k])
+        if mo.valid:
+            assert hc.corner_transfer_error(mo.H, r.homographies[k], W, H) < 1.0, f"frame {k}"
+        else:
+            assert k in big
+
+
+@pytest.mark.parametrize("model,A", [
+    ("homography", np.array([[1.03, 0.02, 3.2], [-0.015, 0.98, -2.1], [4e-5, -6e-5, 1.0]])),
+    ("affine", np.array([[1.03, 0.02, 3.2], [-0.015, 0.98, -2.1], [0.0, 0.0, 1.0]])),
+    ("similarity", np.array([[1.02 * np.cos(0.03), -1.02 * np.sin(0.03), 2.7],
+                             [1.02 * np.sin(0.03), 1.02 * np.cos(0.03), -1.6], [0.0, 0.0, 1.0]])),
+    ("translation", np.array([[1.0, 0.0, 3.4], [0.0, 1.0, -2.6], [0.0, 0.0, 1.0]])),
+])
+@pytest.mark.parametrize("downscale", [1.0, 2.0])
+def test_each_model_recovers_a_known_warp(ground: np.ndarray, model: str, A: np.ndarray,
+                                          downscale: float) -> None:
+    h, w = ground.shape[:2]
+    Ht = about_centre(A, w, h)
+    m = GridLK(GridLK.Params(model=model, downscale=downscale))
+    m.initialize(ground)
+    mo = m.estimate(warp(ground, Ht))
+    assert mo.valid
+    assert hc.corner_transfer_error(mo.H, Ht, w, h) < 0.25
+    # entries outside the model are exactly fixed, and have zero variance
+    free = np.abs(hc.tangent_basis(model)).sum(axis=1) > 0
+    assert np.array_equal(mo.H.reshape(9)[~free], np.eye(3).reshape(9)[~free])
+    if model == "similarity":
+        assert mo.H[0, 0] == pytest.approx(mo.H[1, 1]) and mo.H[0, 1] == pytest.approx(-mo.H[1, 0])
+    assert np.all(np.diag(mo.cov)[~free] == 0) and np.all(np.diag(mo.cov)[free] > 0)
+
+
+def test_forward_backward_check_keeps_consistent_tracks_only(ground: np.ndarray) -> None:
+    h, w = ground.shape[:2]
+    shift = np.array([[1, 0, 2.3], [0, 1, 1.7], [0, 0, 1]])
+    nxt = warp(ground, shift)
+    nxt[100:220, 200:360] = np.roll(ground[100:220, 200:360], (9, -7), axis=(0, 1))  # a moving object
+    results = {}
+    for thr in (None, 0.5, 1e-4):
+        m = GridLK(GridLK.Params(downscale=1.0, fb_threshold=thr))
+        m.initialize(ground)
+        results[thr] = m.estimate(nxt)
+    assert results[None].valid and results[0.5].valid
+    assert hc.corner_transfer_error(results[0.5].H, shift, w, h) < 0.1
+    # LK round trips are not exact at sub-pixel shifts: a tiny threshold leaves too few points
+    assert not results[1e-4].valid
+
+
+def test_features_matches_botsort_opencv_pipeline(ground: np.ndarray) -> None:
+    """BoT-SORT GMC sparseOptFlow written out with OpenCV calls (downscale 2, Shi-Tomasi corners,
+    LK, estimateAffinePartial2D RANSAC, translation times 2) as the reference."""
+    h, w = ground.shape[:2]
+    Ht = about_centre(np.array([[0.99 * np.cos(-0.02), -0.99 * np.sin(-0.02), -2.2],
+                                [0.99 * np.sin(-0.02), 0.99 * np.cos(-0.02), 1.3], [0, 0, 1.0]]), w, h)
+    nxt = warp(ground, Ht)
+    g0 = cv2.resize(cv2.cvtColor(ground, cv2.COLOR_BGR2GRAY), (w // 2, h // 2))
+    g1 = cv2.resize(cv2.cvtColor(nxt, cv2.COLOR_BGR2GRAY), (w // 2, h // 2))
+    kp = cv2.goodFeaturesToTrack(g0, 1000, 0.01, 1, blockSize=3, useHarrisDetector=False, k=0.04)
+    p1, st, _ = cv2.calcOpticalFlowPyrLK(g0, g1, kp, None)
+    ok = st.reshape(-1) == 1
+    M, _ = cv2.estimateAffinePartial2D(kp[ok], p1[ok], method=cv2.RANSAC)
+    M[:, 2] *= 2
+    ref = np.vstack([M, [0, 0, 1]])
+    m = FeatureLK()
+    m.initialize(ground)
+    mo = m.estimate(nxt)
+    assert mo.valid and mo.inliers > 50
+    assert np.allclose(mo.H[2], [0, 0, 1]) and np.isclose(mo.H[0, 0], mo.H[1, 1]) and np.isclose(mo.H[0, 1], -mo.H[1, 0])
+    assert hc.corner_transfer_error(mo.H, ref, w, h) < 0.5
+    assert hc.corner_transfer_error(mo.H, Ht, w, h) < 0.5
+
+
+@pytest.mark.parametrize("cls", [GridLK, FeatureLK])
+def test_degenerate_input_gives_invalid_motion_not_an_exception(cls: type, ground: np.ndarray) -> None:
+    blank = np.full_like(ground, 127)
+    m = cls()
+    assert not m.estimate(ground).valid  # before initialize
+    m.initialize(ground)
+    assert not m.estimate(blank).valid  # blank frame
+    assert not m.estimate(ground).valid  # from a blank frame
+    assert m.estimate(ground).valid  # recovers
+    # too few points: texture only in a small patch, the rest uniform
+    patch = blank.copy()
+    patch[150:190, 300:340] = ground[150:190, 300:340]
+    m.initialize(patch)
+    mo = m.estimate(warp(patch, np.array([[1, 0, 1.0], [0, 1, 0.5], [0, 0, 1]])))
+    assert not mo.valid and mo.inliers == 0 and np.array_equal(mo.H, np.eye(3))
+    # not images, and a size change
+    m.initialize(ground)
+    for bad in (None, "frame.jpg", np.zeros((0, 0, 3), np.uint8), ground.astype(np.float32),
+                np.zeros((4, 5, 6, 3), np.uint8), ground[:, :, :2]):
+        assert not m.estimate(bad).valid
+    m.initialize(ground)
+    assert not m.estimate(ground[:200, :300]).valid
+    m.initialize(ground[:, :, 0])  # a grey image is fine
+    assert m.estimate(np.ascontiguousarray(ground[:, :, 0])).valid
+
+
+def test_illumination_change_is_compensated(ground: np.ndarray) -> None:
+    h, w = ground.shape[:2]
+    shift = about_centre(np.array([[1.01, 0, 1.5], [0, 1.01, -0.5], [0, 0, 1]]), w, h)
+    darker = cv2.convertScaleAbs(warp(ground, shift), alpha=0.6, beta=10)
+    m = GridLK()
+    m.initialize(ground)
+    assert hc.corner_transfer_error(m.estimate(darker).H, shift, w, h) < 0.3
+
+
+def test_identity_plugin() -> None:
+    m = IdentityMotion()
+    m.initialize(np.zeros((4, 4, 3), np.uint8))
+    mo = m.estimate(np.zeros((4, 4, 3), np.uint8))
+    assert mo.valid and np.array_equal(mo.H, np.eye(3)) and mo.cov is None
+
+
+def test_params_are_validated_from_yaml_values() -> None:
+    p = build_params(GridLK.Params, {"grid_cols": 8, "model": "affine", "fb_threshold": 1})
+    assert p.grid_cols == 8 and p.model == "affine" and p.fb_threshold == 1.0
+    for bad in ({"grid_cols": 1}, {"model": "projective"}, {"downscale": 0.5}, {"win_size": 20},
+                {"fb_threshold": -1.0}, {"ransac_confidence": 1.5}):
+        with pytest.raises(ConfigError):
+            build_params(GridLK.Params, bad, path=("egomotion",))
+    with pytest.raises(ConfigError):
+        build_params(FeatureLK.Params, {"quality_level": 0.0})
+
+
+def photometric_residual(prev: np.ndarray, cur: np.ndarray, Hm: np.ndarray) -> float:
+    """Mean absolute grey difference between ``cur`` and ``prev`` warped by ``Hm``, over the
+    pixels that the warp covers."""
+    g0 = cv2.cvtColor(prev, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    g1 = cv2.cvtColor(cur, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    size = (g1.shape[1], g1.shape[0])
+    warped = cv2.warpPerspective(g0, Hm, size)
+    cover = cv2.warpPerspective(np.ones_like(g0), Hm, size, flags=cv2.INTER_NEAREST) > 0
+    return float(np.mean(np.abs(warped - g1)[cover]))
+
+
+def test_real_uav_footage_warp_reduces_the_photometric_residual(shared_data: Path) -> None:
+    img = shared_data / "sequences" / "uav123_10fps" / "wakeboard10" / "img"
+    frames = [cv2.imread(str(img / f"{k:06d}.jpg")) for k in range(40, 46)]
+    m = GridLK()
+    m.initialize(frames[0])
+    for a, b in zip(frames, frames[1:]):
+        mo = m.estimate(b)
+        assert mo.valid and mo.inliers > 60 and 0.2 < mo.sigma < 3.0
+        assert photometric_residual(a, b, mo.H) < 0.8 * photometric_residual(a, b, np.eye(3))
