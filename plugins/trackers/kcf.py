@@ -110,7 +110,7 @@ def _subpixel(left: float, centre: float, right: float) -> float:
 
 
 class KCFTracker:
-    """Scale-aware KCF with HOG-like features (weight-free, numpy/OpenCV); PSR confidence."""
+    """Scale-aware KCF with HOG-like + Lab features (weight-free, numpy/OpenCV); PSR-based confidence."""
 
     name = "kcf"
 
