@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -187,12 +188,23 @@ class _Placed:
 
 
 @dataclass(frozen=True, eq=False)
+class _Tree:
+    """A tree canopy at a fixed ground position; its sprite is drawn on first sight."""
+    xy: np.ndarray
+    radius: float
+    seed: int
+
+    def placed(self) -> _Placed:
+        return _Placed(tex.tree_sprite(self.radius, np.random.default_rng(self.seed)), self.xy, np.zeros(1))
+
+
+@dataclass(frozen=True, eq=False)
 class _Plan:
     G: np.ndarray               # (n, 3, 3) ground -> image
     gain: np.ndarray            # (n,) illumination gain
     target: _Placed
     distractors: list[_Placed]
-    trees: list[_Placed]
+    trees: list[_Tree]
     texture_size: int
 
 
@@ -309,16 +321,15 @@ def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
             k_occ += 1  # the target must start clear of the canopy (tracker initialisation)
         side = rng.choice([-1, 1]) * (0.0 if spec.occlusion == "full" else rng.uniform(0.7, 1.1) * radius)
         normal = np.array([-np.sin(heading[k_occ]), np.cos(heading[k_occ])])
-        tree = tex.tree_sprite(radius, srng)
         if np.linalg.norm(P[k_occ] - P[0]) >= 2.2 * radius + 1.5 * length:
-            trees.append(_Placed(tree, P[k_occ] + side * normal, np.zeros(1)))
+            trees.append(_Tree(P[k_occ] + side * normal, float(radius), _derive(spec.seed, 5, 0)))
             events.append({"kind": "tree", "frame": k_occ, "radius": float(radius)})
     # Scenery trees, kept away from the target's path (only the staged tree may occlude it).
     cand = rng.uniform(0, T, (int(60 * (T / 4096) ** 2) + 4, 2))
     radii = rng.uniform(0.6, 1.6, len(cand)) * 40 * s
     dist = np.min(np.linalg.norm(cand[:, None, :] - P[None, ::max(1, n // 100), :], axis=2), axis=1)
-    for c, r in zip(cand[dist > radii + 2.5 * length], radii[dist > radii + 2.5 * length]):
-        trees.append(_Placed(tex.tree_sprite(float(r), srng), c, np.zeros(1)))
+    for i, (c, r) in enumerate(zip(cand[dist > radii + 2.5 * length], radii[dist > radii + 2.5 * length])):
+        trees.append(_Tree(c, float(r), _derive(spec.seed, 5, i + 1)))
     return _Plan(G, gain, target, distractors, trees, T), events
 
 
@@ -385,7 +396,8 @@ def _render(spec: SequenceSpec, sink: Callable[[int, np.ndarray], None]) -> Rend
     distractor_in = np.zeros(n)             # best in-image fraction of a distractor
     contrast = np.full(n, np.nan)           # target vs surrounding colour distance (sampled)
     tree_centres = np.array([t.xy for t in plan.trees]).reshape(-1, 2)
-    tree_reach = np.array([max(t.sprite.size) * t.sprite.pixel_size for t in plan.trees])
+    tree_reach = np.array([1.4 * t.radius + 4 for t in plan.trees])
+    tree_sprites: dict[int, _Placed] = {}
 
     for k in range(n):
         G = plan.G[k]
@@ -421,7 +433,9 @@ def _render(spec: SequenceSpec, sink: Callable[[int, np.ndarray], None]) -> Rend
             margin = 2.5 * tree_reach[:, None] + 10
             near = np.all((c > -margin) & (c < np.array([W, H]) + margin), axis=1)
             for i in np.flatnonzero(near):
-                r = _composite(frame, plan.trees[i].sprite, G @ _sprite_to_ground(plan.trees[i], k))
+                if i not in tree_sprites:
+                    tree_sprites[i] = plan.trees[i].placed()
+                r = _composite(frame, tree_sprites[i].sprite, G @ _sprite_to_ground(tree_sprites[i], k))
                 if r is not None and cover is not None:
                     _accumulate_cover(cover, tx0, ty0, *r)
         if cover is not None and ta.sum() > 0:
@@ -671,27 +685,40 @@ def read_suite_info(root: str | Path) -> dict | None:
         raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno}); delete the folder to regenerate") from None
 
 
+def _write_group(tasks: list) -> list[RenderedSequence]:
+    return [_write_frames(t) for t in tasks]
+
+
 def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
-    """Run tasks in a process pool of ``jobs`` (spawned workers), results in task order; sorted
-    by ground texture so a worker reuses the grounds it has generated."""
-    order = sorted(range(len(tasks)), key=lambda i: tasks[i][0].texture_seed)
+    """Run tasks in a process pool of ``jobs`` (spawned workers), results in task order. Tasks
+    sharing a ground texture go to the same worker, which generates that ground once."""
+    groups: dict[int, list[int]] = {}
+    for i, t in enumerate(tasks):
+        groups.setdefault(t[0].texture_seed, []).append(i)
     out: list = [None] * len(tasks)
-    if jobs <= 1 or len(tasks) == 1:
-        for i in order:
-            out[i] = fn(tasks[i])
-            if progress:
-                print(f"  {tasks[i][0].name}", flush=True)
+    if jobs <= 1 or len(groups) == 1:
+        for idx in groups.values():
+            for i in idx:
+                out[i] = fn(tasks[i])
+                if progress:
+                    print(f"  {tasks[i][0].name}", flush=True)
         return out
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
-        futures = {i: ex.submit(fn, tasks[i]) for i in order}
-        for i in order:
-            out[i] = futures[i].result()
-            if progress:
-                print(f"  {tasks[i][0].name}", flush=True)
+        futures = [(idx, ex.submit(runner, [tasks[i] for i in idx])) for idx in groups.values()]
+        for idx, fut in futures:
+            for i, r in zip(idx, fut.result()):
+                out[i] = r
+                if progress:
+                    print(f"  {tasks[i][0].name}", flush=True)
     return out
+
+
+def _apply_all(fn, tasks: list) -> list:
+    return [fn(t) for t in tasks]
 
 
 # --- CLI ----------------------------------------------------------------------------------------

@@ -41,19 +41,32 @@ def _noise_octaves(size: int, rng: np.random.Generator, cells: tuple[int, ...],
 
 def ground_texture(size: int, rng: np.random.Generator) -> np.ndarray:
     """A square (size, size, 3) uint8 BGR aerial ground: rotated patchwork of fields, a road
-    network with dashed centre lines, buildings with shadows, and noise at four scales."""
-    s = size / 4096.0  # geometric scale relative to the full-size texture
+    network with dashed centre lines, buildings with shadows, and noise at four scales.
+
+    The layout is drawn at half resolution and upsampled (4x fewer pixels to shade), then a
+    full-resolution grain is added so that the finest scale still has corners for optical flow."""
+    half = max(16, size // 2)
+    img = _ground_layout(half, rng)
+    img = cv2.resize(img, (size, size), interpolation=cv2.INTER_LINEAR)
+    grain = rng.integers(0, 17, (size, size), dtype=np.uint8)
+    grain = cv2.merge([grain, grain, grain])
+    img = cv2.add(img, grain)
+    return cv2.subtract(img, (8, 8, 8, 0))
+
+
+def _ground_layout(size: int, rng: np.random.Generator) -> np.ndarray:
+    s = size / 4096.0  # geometric scale relative to a full-size (4096 px) texture
     # Fields: a coarse random label grid, nearest-upsampled (rectangular plots), then rotated.
     plot = max(8, int(220 * s))
     n = size // plot + 3
-    labels = rng.integers(0, len(_FIELD_COLOURS), (n, n))
-    colours = _FIELD_COLOURS[labels]
-    big = cv2.resize(colours, (n * plot, n * plot), interpolation=cv2.INTER_NEAREST)
+    labels = rng.integers(0, len(_FIELD_COLOURS), (n, n), dtype=np.uint8)
+    big = cv2.resize(labels, (n * plot, n * plot), interpolation=cv2.INTER_NEAREST)
     angle = float(rng.uniform(0, 90))
     c = n * plot / 2.0
     rot = cv2.getRotationMatrix2D((c, c), angle, 1.0)
     rot[:, 2] += size / 2.0 - c
-    img = cv2.warpAffine(big, rot, (size, size), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REFLECT)
+    big = cv2.warpAffine(big, rot, (size, size), flags=cv2.INTER_NEAREST, borderMode=cv2.BORDER_REFLECT)
+    img = _FIELD_COLOURS[big]
 
     # Crop rows inside the fields (sin(ax + by) as two outer products: no per-pixel grid) and
     # multi-scale noise, luminance plus a little chroma.

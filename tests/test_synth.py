@@ -24,7 +24,7 @@ def cruise():
 def target_mask(spec: synth.SequenceSpec, with_target: synth.RenderedSequence) -> list[np.ndarray]:
     """Pixels the target changes: the same scene rendered without it, differenced."""
     without = synth.render_sequence(dataclasses.replace(spec, draw_target=False))
-    return [np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 12 for a, b in zip(with_target.frames, without.frames)]
+    return [np.abs(a.astype(int) - b.astype(int)).max(axis=2) > 2 for a, b in zip(with_target.frames, without.frames)]
 
 
 def test_unpacks_as_frames_gt_homographies_attributes(cruise):
@@ -113,15 +113,17 @@ def test_staged_tree_gives_occlusion_flags_and_nan_rows(seed, kind):
     assert "POC" in r.attributes
     assert ("FOC" in r.attributes) == (kind == "full") == nan.any()
     # where the target is in the image but fully under the canopy, the scene without it is the same
+    # (at most a few anti-aliased canopy-edge pixels show the target through)
     hidden = (r.occluded > 0.99) & (r.visible < 0.01)
     assert hidden.any() == (kind == "full")
+    clear = np.flatnonzero(r.occluded == 0)
+    full = np.median([masks[k].sum() for k in clear])
     for k in np.flatnonzero(hidden):
-        assert not masks[k].any(), k
+        assert masks[k].sum() <= 0.05 * full, k
         assert nan[k], k
     # partially covered frames: fewer target pixels drawn than when it is in the open
     part = np.flatnonzero((r.occluded > 0.3) & (r.occluded < 0.9))
-    clear = np.flatnonzero(r.occluded == 0)
-    assert len(part) and masks[part[0]].sum() < np.median([masks[k].sum() for k in clear])
+    assert len(part) and masks[part[0]].sum() < 0.8 * full
 
 
 def test_flags_follow_generated_facts():
