@@ -10,6 +10,7 @@ for the same number of frames, in one process - the cost no renderer of this des
 from __future__ import annotations
 
 import argparse
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -20,16 +21,16 @@ import numpy as np
 from mata_eval import synth
 
 
-def io_floor(n_frames: int, width: int, height: int, out: Path) -> float:
-    """Seconds for n_frames of (one ground warp + one JPEG write), single process."""
+def io_floor(n_frames: int, width: int, height: int, out: Path) -> tuple[float, float]:
+    """Wall and CPU seconds for n_frames of (one ground warp + one JPEG write), one process."""
     cv2.setNumThreads(1)
     ground = synth.ground_texture(0, int(round(4096 * width / 1280)))
     G = np.array([[1.0, 0.05, -1000], [-0.05, 1.0, -1000], [0, 0, 1]])
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for k in range(n_frames):
         img = cv2.warpPerspective(ground, G, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         cv2.imwrite(str(out / f"{k % 50:06d}.jpg"), img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    return time.perf_counter() - t0
+    return time.perf_counter() - t0, time.process_time() - c0
 
 
 def main() -> None:
@@ -43,16 +44,23 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         t0 = time.perf_counter()
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         synth.write_suite(tmp / "suite", a.n_sequences, a.n_frames, a.width, a.height, seed=0, jobs=a.jobs)
         t_suite = time.perf_counter() - t0
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu_suite = (c1.ru_utime + c1.ru_stime) - (c0.ru_utime + c0.ru_stime)
         (tmp / "floor").mkdir()
         n_floor = min(a.n_sequences * a.n_frames, 600)
-        t_floor = io_floor(n_floor, a.width, a.height, tmp / "floor") * (a.n_sequences * a.n_frames / n_floor) / a.jobs
+        wall, cpu = io_floor(n_floor, a.width, a.height, tmp / "floor")
+        t_floor = wall * (a.n_sequences * a.n_frames / n_floor) / a.jobs
+        cpu_floor = cpu * (a.n_sequences * a.n_frames / n_floor)
     frames = a.n_sequences * a.n_frames
     print(f"suite {a.n_sequences} x {a.n_frames} frames at {a.width}x{a.height}, {a.jobs} workers: "
           f"{t_suite:.1f} s ({1000 * t_suite / frames:.2f} ms/frame wall){'  OK (< 60 s)' if t_suite < 60 else '  SLOW (>= 60 s)'}")
     print(f"I/O floor (warp + JPEG write per frame, same frame count over {a.jobs} workers): {t_floor:.1f} s")
-    print(f"ratio suite / floor: {t_suite / t_floor:.2f}x")
+    print(f"ratio suite / floor: {t_suite / t_floor:.2f}x (wall), {cpu_suite / cpu_floor:.2f}x (CPU time)")
+    print(f"CPU time: suite {cpu_suite:.1f} s in the workers -> {cpu_suite / a.jobs:.1f} s on {a.jobs} idle cores; "
+          f"floor {cpu_floor:.1f} s")
 
 
 if __name__ == "__main__":
