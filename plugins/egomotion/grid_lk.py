@@ -149,7 +149,8 @@ class GridLK:
         downscale: float = param(2.0, "divide the image size by this before LK (1 = full resolution)")
         model: Literal["homography", "affine", "similarity", "translation"] = param(
             "homography", "motion model fitted to the tracked points")
-        win_size: int = param(21, "LK window side (pixels of the shrunk image)")
+        win_size: int = param(11, "LK window side (pixels of the shrunk image; 11 at downscale 2 covers "
+                                   "the scene area of OpenCV's 21-pixel default at full resolution)")
         max_level: int = param(3, "LK pyramid levels above the base image")
         max_iter: int = param(30, "LK iterations per pyramid level")
         epsilon: float = param(0.01, "LK stops when an update moves less than this (px)")
