@@ -696,6 +696,10 @@ def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
     for i, t in enumerate(tasks):
         groups.setdefault(t[0].texture_seed, []).append(i)
     out: list = [None] * len(tasks)
+    import multiprocessing as mp
+
+    if mp.current_process().daemon:  # a daemonic pool worker may not start processes
+        jobs = 1
     if jobs <= 1 or len(groups) == 1:
         for idx in groups.values():
             for i in idx:
@@ -703,7 +707,6 @@ def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
                 if progress:
                     print(f"  {tasks[i][0].name}", flush=True)
         return out
-    import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
