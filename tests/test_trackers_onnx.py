@@ -4,7 +4,6 @@ prior moving the search region (real data: skipped without ../shared/data)."""
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import cv2
