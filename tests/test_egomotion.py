@@ -186,6 +186,8 @@ def test_degenerate_input_gives_invalid_motion_not_an_exception(cls: type, groun
         assert not m.estimate(bad).valid
     m.initialize(ground)
     assert not m.estimate(ground[:200, :300]).valid
+    m.initialize(ground[:40, :40])  # smaller than 2 px per grid cell after downscaling (grid_lk)
+    assert m.estimate(ground[1:41, 1:41]).valid is False
     m.initialize(ground[:, :, 0])  # a grey image is fine
     assert m.estimate(np.ascontiguousarray(ground[:, :, 0])).valid
 

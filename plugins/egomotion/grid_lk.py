@@ -200,6 +200,8 @@ class GridLK:
         if prev is None or cur is None or prev.shape != cur.shape or prev_full != self._full_shape:
             return Motion.invalid()
         p = self.params
+        if cur.shape[1] < 2 * p.grid_cols or cur.shape[0] < 2 * p.grid_rows:
+            return Motion.invalid()  # grid points closer than 2 px: repeated, not independent, tracks
         pts = self._grid(cur.shape)
         lk = dict(winSize=(p.win_size, p.win_size), maxLevel=p.max_level,
                   criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, p.max_iter, p.epsilon))
