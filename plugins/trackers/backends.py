@@ -26,16 +26,22 @@ class BackendUnavailable(RuntimeError):
     """The chosen backend or device is not installed or not usable on this machine."""
 
 
+# Input shapes of a TensorRT optimization profile: name -> (min, opt, max) shapes, for graphs
+# whose inputs have free dims (the NanoTrack backbone takes 127 and 255 px crops).
+Shapes = dict[str, tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]]
+
+
 def open_onnx(path: str | Path, backend: Backend = "onnxruntime", device: Device = "cpu",
-              threads: int = 0, fp16: bool = False) -> Runner:
-    """Open an ONNX graph with the chosen backend."""
+              threads: int = 0, fp16: bool = False, shapes: Shapes | None = None) -> Runner:
+    """Open an ONNX graph with the chosen backend. ``shapes``: the TensorRT optimization profile
+    of inputs with free dims (ignored by ONNX Runtime)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"ONNX file not found: {path}")
     if backend == "onnxruntime":
         return _onnxruntime(path, device, threads)
     if backend == "tensorrt":
-        return TensorRTRunner(build_engine(path, fp16=fp16))
+        return TensorRTRunner(build_engine(path, fp16=fp16, shapes=shapes))
     raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
 
 
@@ -61,18 +67,25 @@ def _onnxruntime(path: Path, device: Device, threads: int) -> Runner:
     return run
 
 
-def engine_path_for(onnx_path: Path, fp16: bool) -> Path:
-    return onnx_path.with_suffix(f".{'fp16' if fp16 else 'fp32'}.engine")
+def engine_path_for(onnx_path: Path, fp16: bool, shapes: Shapes | None = None) -> Path:
+    tag = ""
+    if shapes:
+        import hashlib
+
+        tag = "." + hashlib.sha256(repr(sorted(shapes.items())).encode()).hexdigest()[:8]
+    return onnx_path.with_suffix(f"{tag}.{'fp16' if fp16 else 'fp32'}.engine")
 
 
-def build_engine(onnx_path: Path, fp16: bool = False, engine_path: Path | None = None) -> Path:
-    """Build (or reuse, when newer than the ONNX file) a serialized TensorRT engine."""
+def build_engine(onnx_path: Path, fp16: bool = False, engine_path: Path | None = None,
+                 shapes: Shapes | None = None) -> Path:
+    """Build (or reuse, when newer than the ONNX file) a serialized TensorRT engine; inputs with
+    free dims need their (min, opt, max) shapes in ``shapes``."""
     try:
         import tensorrt as trt
     except ImportError:
         raise BackendUnavailable("TensorRT is not installed (on a Jetson it comes with JetPack: "
                                  "python3 -c 'import tensorrt')") from None
-    engine_path = engine_path or engine_path_for(onnx_path, fp16)
+    engine_path = engine_path or engine_path_for(onnx_path, fp16, shapes)
     if engine_path.is_file() and engine_path.stat().st_mtime >= onnx_path.stat().st_mtime:
         return engine_path
     logger = trt.Logger(trt.Logger.WARNING)
@@ -83,6 +96,17 @@ def build_engine(onnx_path: Path, fp16: bool = False, engine_path: Path | None =
         errors = "; ".join(str(parser.get_error(i)) for i in range(parser.num_errors))
         raise RuntimeError(f"TensorRT cannot parse {onnx_path}: {errors}")
     config = builder.create_builder_config()
+    dynamic = [network.get_input(i) for i in range(network.num_inputs) if -1 in tuple(network.get_input(i).shape)]
+    if dynamic:
+        missing = [t.name for t in dynamic if t.name not in (shapes or {})]
+        if missing:
+            raise ValueError(f"{onnx_path}: inputs {missing} have free dims; TensorRT needs their (min, opt, max) "
+                             "shapes (open_onnx(..., shapes=...))")
+        profile = builder.create_optimization_profile()
+        for t in dynamic:
+            lo, opt, hi = shapes[t.name]
+            profile.set_shape(t.name, tuple(lo), tuple(opt), tuple(hi))
+        config.add_optimization_profile(profile)
     if fp16:
         config.set_flag(trt.BuilderFlag.FP16)
     serialized = builder.build_serialized_network(network, config)
@@ -110,18 +134,37 @@ class TensorRTRunner:
         self.context = self.engine.create_execution_context()
         self.stream = torch.cuda.Stream()
         self.buffers: dict[str, "torch.Tensor"] = {}
+        self.dtypes: dict[str, "torch.dtype"] = {}
         self.inputs, self.outputs = [], []
+        self.dynamic = False
         for i in range(self.engine.num_io_tensors):
             name = self.engine.get_tensor_name(i)
-            dtype = torch.from_numpy(np.empty(0, trt.nptype(self.engine.get_tensor_dtype(name)))).dtype
-            buf = torch.empty(tuple(self.engine.get_tensor_shape(name)), dtype=dtype, device="cuda")
-            self.buffers[name] = buf
-            self.context.set_tensor_address(name, buf.data_ptr())
+            self.dtypes[name] = torch.from_numpy(np.empty(0, trt.nptype(self.engine.get_tensor_dtype(name)))).dtype
+            shape = tuple(self.engine.get_tensor_shape(name))
             is_input = self.engine.get_tensor_mode(name) == trt.TensorIOMode.INPUT
             (self.inputs if is_input else self.outputs).append(name)
+            if -1 in shape:
+                self.dynamic = True
+            else:
+                self._bind(name, shape)
+
+    def _bind(self, name: str, shape: tuple[int, ...]) -> None:
+        """(Re)allocate the device buffer of ``name`` when its shape changes."""
+        buf = self.buffers.get(name)
+        if buf is None or tuple(buf.shape) != tuple(shape):
+            buf = self._torch.empty(tuple(shape), dtype=self.dtypes[name], device="cuda")
+            self.buffers[name] = buf
+            self.context.set_tensor_address(name, buf.data_ptr())
 
     def __call__(self, feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         torch = self._torch
+        if self.dynamic:   # free dims: shapes of this call, then the outputs' shapes follow
+            for name in self.inputs:
+                shape = tuple(np.shape(feeds[name]))
+                self.context.set_input_shape(name, shape)
+                self._bind(name, shape)
+            for name in self.outputs:
+                self._bind(name, tuple(self.context.get_tensor_shape(name)))
         with torch.cuda.stream(self.stream):
             for name in self.inputs:
                 self.buffers[name].copy_(torch.from_numpy(np.ascontiguousarray(feeds[name])), non_blocking=True)

@@ -216,7 +216,8 @@ class NanoTrack:
             from .backends import open_onnx
 
             p = self.params
-            self._nets = (open_onnx(relaxed_copy(self._backbone_path), p.backend, p.device, p.threads),
+            crops = {"input": ((1, 3, EXEMPLAR, EXEMPLAR), (1, 3, INSTANCE, INSTANCE), (1, 3, INSTANCE, INSTANCE))}
+            self._nets = (open_onnx(relaxed_copy(self._backbone_path), p.backend, p.device, p.threads, shapes=crops),
                           open_onnx(self._head_path, p.backend, p.device, p.threads))
         return self._nets
 
