@@ -42,7 +42,7 @@ UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "V
 SCENARIOS = ("cruise", "manoeuvre", "outofview", "occlusion", "crowd")
 
 _REF_WIDTH = 1280.0  # geometry, speeds and attribute thresholds scale with width / 1280
-GENERATOR_VERSION = 1  # bump when the pixels a seed gives change (cache key of the suite)
+GENERATOR_VERSION = 2  # bump when the pixels a seed gives change (cache key of the suite)
 
 
 @dataclass(frozen=True)
@@ -132,11 +132,16 @@ def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, h
     textures are shared by groups of sequences (``n_textures`` different grounds)."""
     if n_sequences < 1:
         raise ValueError(f"n_sequences must be >= 1, got {n_sequences}")
-    return [make_spec(_derive(seed, 100, i), n_frames, width, height,
-                      name=f"syn{i + 1:03d}_{SCENARIOS[i % len(SCENARIOS)]}",
-                      scenario=SCENARIOS[i % len(SCENARIOS)],
-                      texture_seed=_derive(seed, 200, i % max(1, n_textures)))
-            for i in range(n_sequences)]
+    specs = []
+    for i in range(n_sequences):
+        sp = make_spec(_derive(seed, 100, i), n_frames, width, height,
+                       name=f"syn{i + 1:03d}_{SCENARIOS[i % len(SCENARIOS)]}",
+                       scenario=SCENARIOS[i % len(SCENARIOS)],
+                       texture_seed=_derive(seed, 200, i % max(1, n_textures)))
+        if sp.occlusion != "none":  # alternate full and partial occlusions through the suite
+            sp = dataclasses.replace(sp, occlusion="full" if (i // len(SCENARIOS)) % 2 == 0 else "partial")
+        specs.append(sp)
+    return specs
 
 
 # --- motion -----------------------------------------------------------------------------------
