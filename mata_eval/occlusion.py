@@ -463,7 +463,9 @@ def add_cli(subparsers) -> None:
                                           "layout with per-frame occlusion metadata and contact sheets. To "
                                           "augment at load time instead, add an `occlusion:` block to the experiment.")
     p.add_argument("out", help="output dataset root")
-    p.add_argument("--dataset", default="synthetic", help="dataset plugin name (default synthetic)")
+    p.add_argument("--dataset", default="synthetic",
+                   help="dataset plugin name (default synthetic: the cached default suite, or the suite "
+                        "written by `mata-eval synth` at --root)")
     p.add_argument("--root", help="the dataset's root folder (its `root` parameter)")
     p.add_argument("--sequences", nargs="*", help="only these sequences")
     p.add_argument("--seed", type=int, default=0, help="experiment seed (default 0)")
@@ -495,10 +497,15 @@ def _cmd_augment(args: argparse.Namespace) -> int:
     try:
         params = build_params(OcclusionParams, values, ("occlusion",),
                               (lambda kp: str(args.config)) if args.config else None)
-        entry = load_registry().get("dataset", args.dataset)
-        block = {k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}
-        dataset = entry.cls(build_params(entry.cls.Params, block, ("dataset",)))
-        sequences = dataset.sequences()
+        if args.root and args.dataset == "synthetic" and (Path(args.root) / "synth.json").is_file():
+            from .datasets.synthetic import read_suite  # a suite written by `mata-eval synth`, as it is
+
+            sequences = read_suite(args.root, args.sequences)
+        else:
+            entry = load_registry().get("dataset", args.dataset)
+            block = {k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}
+            dataset = entry.cls(build_params(entry.cls.Params, block, ("dataset",)))
+            sequences = dataset.sequences()
     except (ConfigError, KeyError, ValueError) as e:
         print(f"mata-eval augment: {e}")
         return 2

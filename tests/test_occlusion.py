@@ -171,3 +171,9 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     name = synth.suite_specs(1, 8, 96, 64)[0].name
     assert (tmp_path / "out" / "data_seq" / "UAV123" / name / "000008.jpg").is_file()
     assert len(load_occlusion(tmp_path / "out", name)) == 8
+    # a suite written by `mata-eval synth` is read as it is (its own generation parameters),
+    # and its true homographies travel with the augmented copy
+    args = parser.parse_args(["augment", str(tmp_path / "out2"), "--root", str(tmp_path / "syn"), "--n-events", "1"])
+    assert args.func(args) == 0
+    np.testing.assert_allclose(synth.load_true_homographies(tmp_path / "out2", name),
+                               synth.load_true_homographies(tmp_path / "syn", name), rtol=1e-9)

@@ -89,18 +89,24 @@ class SyntheticDataset:
         return root
 
     def sequences(self) -> list[Sequence]:
-        import dataclasses
+        return read_suite(self.ensure(), self.params.sequences)
 
-        from ..synth import load_true_homographies
-        from .uav123 import UAV123
 
-        root = self.ensure()
-        reader = UAV123(UAV123.Params(root=str(root), sequences=self.params.sequences))
-        out = []
-        for seq in reader.sequences():
-            meta = {**seq.meta, "homographies": load_true_homographies(root, seq.name), "synthetic": True}
-            out.append(dataclasses.replace(seq, meta=meta))
-        return out
+def read_suite(root: str | Path, sequences: list[str] | None = None) -> list[Sequence]:
+    """The sequences of a generated suite (as written by ``mata-eval synth``), read through the
+    UAV123 loader, with the true homographies in ``meta["homographies"]``."""
+    import dataclasses
+
+    from ..synth import load_true_homographies
+    from .uav123 import UAV123
+
+    root = Path(root)
+    reader = UAV123(UAV123.Params(root=str(root), sequences=sequences))
+    out = []
+    for seq in reader.sequences():
+        meta = {**seq.meta, "homographies": load_true_homographies(root, seq.name), "synthetic": True}
+        out.append(dataclasses.replace(seq, meta=meta))
+    return out
 
 
 @hookimpl
