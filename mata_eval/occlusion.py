@@ -30,6 +30,7 @@ from typing import Literal, Sequence as Seq
 import cv2
 import numpy as np
 
+from .errors import ConfigError
 from .params import param
 from .sequence import Sequence
 
@@ -60,21 +61,30 @@ class OcclusionParams:
     jitter: float = param(0.01, "acceleration jitter, std in object sizes per frame^2")
 
     def __post_init__(self) -> None:
+        def fail(key: tuple, message: str) -> None:
+            raise ConfigError("", ("occlusion",) + key, message)
+
         bad = [s for s in self.shapes if s not in SHAPES]
         if bad or not self.shapes:
-            raise ValueError(f"occlusion.shapes: unknown shape(s) {bad or '(empty list)'}; expected some of {', '.join(SHAPES)}")
+            fail(("shapes",), f"unknown shape(s) {bad or '(empty list)'}; expected some of {', '.join(SHAPES)}")
         for i, e in enumerate(self.events):
             if not isinstance(e, dict) or set(e) - {"shape", "start", "end"} or not {"start", "end"} <= set(e):
-                raise ValueError(f"occlusion.events[{i}]: expected {{shape, start, end}}, got {e!r}")
-            if e.get("shape", "rectangle") not in SHAPES:
-                raise ValueError(f"occlusion.events[{i}].shape: expected one of {', '.join(SHAPES)}, got {e['shape']!r}")
+                fail(("events", i), f"expected {{shape, start, end}} (start/end: frame index or fraction), got {e!r}")
+            if e.get("shape", self.shapes[i % len(self.shapes)]) not in SHAPES:
+                fail(("events", i, "shape"), f"expected one of {', '.join(SHAPES)}, got {e['shape']!r}")
+            for key in ("start", "end"):
+                v = e[key]
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not 0 <= v <= 1):
+                    fail(("events", i, key), f"expected a frame index (int) or a fraction in [0, 1] (float), got {v!r}")
         if self.n_events < 0:
-            raise ValueError(f"occlusion.n_events: expected >= 0, got {self.n_events}")
+            fail(("n_events",), f"expected >= 0, got {self.n_events}")
+        if self.duration <= 0:
+            fail(("duration",), f"expected seconds > 0, got {self.duration}")
         for key in ("size", "alpha", "hit_points"):
             lo, hi = getattr(self, key)
             if not 0 <= lo <= hi or (key == "alpha" and hi > 1):
-                raise ValueError(f"occlusion.{key}: expected a range [low, high] with 0 <= low <= high"
-                                 f"{' <= 1' if key == 'alpha' else ''}, got {getattr(self, key)!r}")
+                fail((key,), f"expected a range [low, high] with 0 <= low <= high"
+                             f"{' <= 1' if key == 'alpha' else ''}, got {list(getattr(self, key))!r}")
 
 
 @dataclass(frozen=True, eq=False)

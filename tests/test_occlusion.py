@@ -124,10 +124,14 @@ def test_params_from_an_experiment_block_and_errors():
     assert p.n_events == 1 and p.shapes == ["stripe"] and p.size == (1.5, 2.5)
     with pytest.raises(ConfigError, match="n_evnts"):
         build_params(OcclusionParams, {"n_evnts": 1}, ("occlusion",))
-    with pytest.raises(ValueError, match="shapes.*hexagon"):
+    with pytest.raises(ConfigError, match="occlusion.shapes.*hexagon"):
         OcclusionParams(shapes=["hexagon"])
-    with pytest.raises(ValueError, match=r"events\[0\]"):
+    with pytest.raises(ConfigError, match=r"occlusion.events.0"):
         OcclusionParams(events=[{"shape": "circle", "begin": 3}])
+    with pytest.raises(ConfigError, match=r"occlusion.events.0.end: expected a frame index"):
+        build_params(OcclusionParams, {"events": [{"start": 0.2, "end": 1.5}]}, ("occlusion",))
+    with pytest.raises(ConfigError, match=r"occlusion.alpha"):
+        build_params(OcclusionParams, {"alpha": [0.5, 1.2]}, ("occlusion",))
     # fractions of the sequence are accepted for hand-set start/end
     seq = grey_sequence()
     aug = augment_sequence(seq, OcclusionParams(events=[{"shape": "circle", "start": 0.25, "end": 0.75}]), 0)
