@@ -400,14 +400,14 @@ class OSTrackBackbone(nn.Module):
             if ratio < 1.0 and keep_ratio is not None:
                 ratio = keep_ratio
             q, k, v = blk.qkv(h)
+            h = blk.attn_residual(h, attend(q, k, v))
             if ratio < 1.0:
-                attn = ((q @ k.transpose(-2, -1)) * q.shape[-1] ** -0.5).softmax(dim=-1)
-                h = blk.attn_residual(h, attn @ v)
-                h, index, gone = eliminate_candidates(h, attn, nt, ratio, index, self.ce_query)
+                # only the CE query's attention row is needed for the ranking
+                qc = q[:, :, self.ce_query:self.ce_query + 1]
+                row = ((qc @ k.transpose(-2, -1)) * q.shape[-1] ** -0.5).softmax(dim=-1)
+                h, index, gone = eliminate_candidates(h, row, nt, ratio, index, query=0)
                 if gone is not None:
                     removed.append(gone)
-            else:
-                h = blk.attn_residual(h, attend(q, k, v))
             h = blk.mlp_residual(h)
         h = self.norm(h)
         xs = h[:, nt:]
