@@ -459,7 +459,7 @@ def _render(spec: SequenceSpec, sink: Callable[[int, np.ndarray], None]) -> Rend
         Hk = plan.G[k] @ np.linalg.inv(plan.G[k - 1])
         Hs[k] = Hk / Hk[2, 2]
     facts = dict(in_image=in_image, distractor_in=distractor_in, contrast=contrast, events=events,
-                 gain=plan.gain, gt_full=gt_full, angle=plan.target.angle - _image_yaw(plan.G))
+                 gain=plan.gain, gt_full=gt_full, angle=plan.target.angle + _image_yaw(plan.G, plan.target.xy))
     flags = attribute_flags(gt, gt_full, visible, in_image, occluded, Hs, plan.gain, distractor_in,
                             contrast, facts["angle"], W, H, s)
     attrs = frozenset(a for a, f in zip(UAV123_ATTRIBUTES, flags) if f)
@@ -500,10 +500,12 @@ def _contrast(frame: np.ndarray, x0: int, y0: int, a: np.ndarray) -> float:
     return float(np.linalg.norm(inner - outer))
 
 
-def _image_yaw(G: np.ndarray) -> np.ndarray:
-    """Angle of the ground x axis in each image (to express sprite angles in image terms)."""
-    p = np.einsum("nij,j->ni", G, [0.0, 0.0, 1.0])
-    q = np.einsum("nij,j->ni", G, [1.0, 0.0, 1.0])
+def _image_yaw(G: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """Per frame, the image angle of the ground x axis at ground point ``at[k]`` (so that a
+    sprite's ground angle plus this is its angle in the image)."""
+    one = np.ones((len(G), 1))
+    p = np.einsum("nij,nj->ni", G, np.hstack([at, one]))
+    q = np.einsum("nij,nj->ni", G, np.hstack([at + [1.0, 0.0], one]))
     d = q[:, :2] / q[:, 2:] - p[:, :2] / p[:, 2:]
     return np.arctan2(d[:, 1], d[:, 0])
 
