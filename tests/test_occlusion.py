@@ -181,3 +181,36 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     assert args.func(args) == 0
     np.testing.assert_allclose(synth.load_true_homographies(tmp_path / "out2", name),
                                synth.load_true_homographies(tmp_path / "syn", name), rtol=1e-9)
+
+
+def test_every_run_of_an_experiment_sees_the_same_occlusions(tmp_path):
+    """Through the experiment file and the runner's loader: two runs of a matrix (different
+    methods) get identical occluded frames and metadata; another experiment seed does not."""
+    from mata_eval import runner, synth
+    from mata_eval.config import load_experiment
+
+    synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(2, 30, 96, 64, seed=2), jobs=1)
+    text = f"""
+seed: 4
+output: {tmp_path / 'out'}
+dataset: {{name: uav123, root: {tmp_path / 'syn'}}}
+occlusion: {{n_events: 2, duration: 0.3, skip_start: 2}}
+tracker: {{name: kcf}}
+protocol: {{name: ltp}}
+matrix:
+  config:
+    held: {{feedback: false}}
+    fed: {{feedback: true}}
+"""
+    (tmp_path / "e.yaml").write_text(text)
+    (tmp_path / "f.yaml").write_text(text.replace("seed: 4", "seed: 5"))
+    exp = load_experiment(tmp_path / "e.yaml")
+    assert len(exp.runs) == 2
+    a, b = (runner.load_sequences(r) for r in exp.runs)
+    other = runner.load_sequences(load_experiment(tmp_path / "f.yaml").runs[0])
+    assert [s.name for s in a] == [s.name for s in b]
+    for x, y, z in zip(a, b, other):
+        assert ATTRIBUTE in x.attributes
+        np.testing.assert_array_equal(x.meta["occlusion"], y.meta["occlusion"])
+        assert all(np.array_equal(x.image(k), y.image(k)) for k in range(len(x)))
+        assert not np.array_equal(np.nan_to_num(x.meta["occlusion"]), np.nan_to_num(z.meta["occlusion"]))
