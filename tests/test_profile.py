@@ -226,3 +226,24 @@ def test_cli_writes_the_profile_and_asks_for_a_run(tmp_path, capsys, monkeypatch
     m = prof.machine
     assert m["cpu"] and m["threads"]["cpu_count"] >= 1 and "numpy" in m["versions"]
     assert m["run"]["run"] == "b" and m["run"]["sequence"] == "seqA"
+
+
+def test_machine_description_of_a_jetson(monkeypatch):
+    """ARM /proc/cpuinfo without 'model name' falls back to the device-tree model; the L4T
+    release and nvpmodel's power mode are recorded (texts as a JetPack 6 Orin prints them)."""
+    import mata_eval.profile as prof
+
+    files = {
+        "/proc/cpuinfo": "processor\t: 0\nBogoMIPS\t: 62.50\nCPU implementer\t: 0x41\nCPU part\t: 0xd42\n",
+        "/proc/device-tree/model": "NVIDIA Jetson AGX Orin Developer Kit\x00",
+        "/etc/nv_tegra_release": "# R36 (release), REVISION: 4.0, GCID: 37537400, BOARD: generic, EABI: aarch64\nx",
+    }
+    monkeypatch.setattr(prof, "_read", lambda path: files.get(path))
+    commands = {"nvpmodel": "NV Power Mode: MODE_30W\n2\n", "nvidia-smi": None}
+    monkeypatch.setattr(prof, "_command", lambda args, timeout=5.0: commands.get(args[0]))
+    assert prof.cpu_model() == "NVIDIA Jetson AGX Orin Developer Kit"
+    m = prof.describe_machine()
+    assert m["jetson"]["l4t_release"].startswith("# R36 (release), REVISION: 4.0")
+    assert m["power_mode"] == "NV Power Mode: MODE_30W 2"
+    files["/proc/cpuinfo"] = "processor\t: 0\nmodel name\t: AMD EPYC 7B13\n"
+    assert prof.cpu_model() == "AMD EPYC 7B13"
