@@ -281,32 +281,42 @@ def ablation_marks(config: Mapping[str, Any]) -> tuple[bool, bool, bool | None, 
             parts.append("no threshold on measurements")
         if est.get("delay") == "compensate":
             parts.append("delay compensation")
+        if est.get("gating", True) and est.get("tau_ewma", PAPER_TAU_EWMA) != PAPER_TAU_EWMA:
+            parts.append(f"confidence gate tau_ewma = {est['tau_ewma']:g}")
         details = ", ".join(p for p in parts if p) or "MATA"
     return ego, ekf, score, details
 
 
+PAPER_TAU_EWMA = 0.25  # homography_ekf's default gate (paper eq. ewma_score)
 _CONFIG_NUMBER = re.compile(r"^(\d+)[-_ ]")
 
 
 def ablation_table(runs: Sequence[PlacedRun]) -> PaperTable:
     """Paper Table 3: one row per configuration (numbered by the run label's leading number, else
-    in the order given), its block marks, description, PR, SR, MSR, NT2F."""
+    in the order given), its block marks, description, PR, SR, MSR, NT2F. A VOT column is added
+    when the runs use more than one tracker (rows then grouped by tracker)."""
     def number(i_r):
         i, r = i_r
-        m = _CONFIG_NUMBER.match(r.name.rsplit("/", 1)[-1])
+        m = _CONFIG_NUMBER.match(r.name)
         return (int(m.group(1)) if m else 10_000 + i)
 
-    ordered = sorted(enumerate(runs), key=number)
-    rows = []
+    trackers = _tracker_order(runs)
+    vary = len(trackers) > 1
+    ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker), number(i_r)))
+    rows, blocks = [], []
     for i, r in ordered:
+        if vary and (not rows or rows[-1][0] != r.tracker):
+            blocks.append(len(rows))
         ego, ekf, score, details = ablation_marks(r.config)
         m = _CONFIG_NUMBER.match(r.name)
         s = r.scores.summary.overall
-        rows.append([m.group(1) if m else str(i + 1), _mark(ego), _mark(ekf), _mark(score), details,
-                     _pct(s.pr), _pct(s.sr), _pct(s.msr), _pct(s.nt2f)])
-    blocks = [0, 2, 3] if len(rows) >= 4 else [0]
-    return PaperTable("ablation", CAPTIONS["ablation"], ["Configuration", "Ego motion", "EKF", "Score", "Details"],
-                      [], ["PR", "SR", "MSR", "NT2F"], rows, blocks)
+        rows.append(([r.tracker] if vary else [])
+                    + [m.group(1) if m else str(i + 1), _mark(ego), _mark(ekf), _mark(score), details,
+                       _pct(s.pr), _pct(s.sr), _pct(s.msr), _pct(s.nt2f)])
+    if not vary:
+        blocks = [0, 2, 3] if len(rows) >= 4 else [0]
+    stub = (["VOT"] if vary else []) + ["Configuration", "Ego motion", "EKF", "Score", "Details"]
+    return PaperTable("ablation", CAPTIONS["ablation"], stub, [], ["PR", "SR", "MSR", "NT2F"], rows, blocks)
 
 
 def embedded_role(run: PlacedRun) -> str:

@@ -148,7 +148,7 @@ def test_ablation_rows_marks_and_details(tmp_path):
         "7-no-threshold": config(mata=True, protocol=proto, estimator={**EKF, "gating": False}),
         "3-score": config(protocol=proto),
     }
-    confs["3-score"]["tracker"] = {"name": "mixformerv2", "confidence": "window"}
+    confs["3-score"]["tracker"] = {"name": "kcf", "confidence": "window"}  # as mixformerv2 declares it
     dirs = [make_run(tmp_path, n, c, {"s": i + 3}) for i, (n, c) in enumerate(confs.items())]
     rows = md_rows(render_paper_table(build_table("ablation", load_runs(dirs)), "markdown"))
     assert rows[0] == ["Configuration", "Ego motion", "EKF", "Score", "Details", "PR", "SR", "MSR", "NT2F"]
@@ -156,7 +156,7 @@ def test_ablation_rows_marks_and_details(tmp_path):
     assert [r[0] for r in rows[2:]] == ["1", "2", "3", "4", "5", "7"]
     assert body["1"][1:5] == ["✗", "✗", "-", "KCF (baseline)"]
     assert body["2"][1:5] == ["✓", "✓", "-", "MATA"]
-    assert body["3"][1:5] == ["✗", "✗", "✓", "MixFormerV2 (baseline), explainable score"]
+    assert body["3"][1:5] == ["✗", "✗", "✓", "KCF (baseline), explainable score"]
     assert body["4"][1:5] == ["✗", "✓", "-", "no camera compensation"]
     assert body["5"][4] == "constant acceleration model"
     assert body["7"][4] == "no threshold on measurements"
@@ -265,3 +265,16 @@ def test_per_sequence_comparison_cli(tmp_path, capsys):
     assert rows[3] == ["s2", "", "100.0", "80.0", "-20.0", "100.0", "80.0", "-20.0", "-", "16"]
     assert rows[4] == ["mean (2)", "", "60.0", "65.0", "+5.0", "60.0", "65.0", "+5.0", "", ""]
     assert cli.main(["report", "--per-sequence", str(a)]) == 2
+
+
+def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):
+    proto = {"name": "eop", "tracker_hz": 10}
+    comp = {**EKF, "delay": "compensate", "tau_ewma": 0.05}
+    dirs = [make_run(tmp_path, "v-mata", config("vittrack", mata=True, protocol=proto), {"s": 8}),
+            make_run(tmp_path, "k-base", config("kcf", protocol=proto), {"s": 4}),
+            make_run(tmp_path, "k-comp", config("kcf", mata=True, protocol=proto, estimator=comp), {"s": 6})]
+    rows = md_rows(render_paper_table(build_table("ablation", load_runs(dirs)), "markdown"))
+    assert rows[0][:2] == ["VOT", "Configuration"]
+    assert [(r[0], r[5]) for r in rows[2:]] == [
+        ("VitTrack", "MATA"), ("KCF", "KCF (baseline)"),
+        ("", "delay compensation, confidence gate tau_ewma = 0.05")]
