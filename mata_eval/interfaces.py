@@ -44,7 +44,9 @@ class EgoMotion(Protocol):
 @runtime_checkable
 class Estimator(Protocol):
     """Block C. ``step`` is called at each estimator tick (camera time ``t``) with the block
-    outputs published since the previous tick, oldest first; each carries its capture time."""
+    outputs published since the previous call, oldest first; each carries its capture time.
+    A tick may make two calls at the same ``t``: first with the camera motion (the estimate the
+    tracker then uses as its search centre), then with a detection published at ``t`` itself."""
 
     def initialize(self, box: Box, t: float) -> Estimate: ...
 

@@ -8,8 +8,13 @@ turn (a 10 Hz block on a 30 Hz stream: frames 0, 3, 6, ...). At a turn it starts
 a block still busy skips the turn (no queueing). A call started at ``t_k`` publishes its output
 on the shared board at ``t_k + latency`` (plus an optional per-link communication delay before a
 given consumer sees it); the block is busy until it publishes. Within one frame the blocks run
-in data-flow order (camera, egomotion, tracker, estimator), so a zero-latency output published at
-``t_k`` is seen by the blocks after it in that order at the same frame. The scored value of frame
+in data-flow order (camera, egomotion, estimator, tracker), so a zero-latency output published at
+``t_k`` is seen by the blocks after it in that order at the same frame. The estimator's tick is
+split around the tracker (DESIGN.md): it first takes the camera motion and the detections visible
+at ``t_k`` (so the tracker's search centre at frame k is the estimate at frame k), then, when the
+tracker published a detection at ``t_k`` itself (zero latency), a second ``step(t_k, (), dets)``
+at the same time folds it into the estimate of frame k; the two calls are one tick (one start,
+one latency, their wall times summed). The scored value of frame
 ``k`` is the newest output of the output block (the estimator, or the tracker without one)
 visible at ``t_k``: a zero-order hold.
 
@@ -17,7 +22,7 @@ Frame 0 initialises every block (tracker with the ground-truth box, egomotion wi
 estimator with the ground-truth box at t = 0); an initialisation is a call like any other (its
 latency occupies the block) and publishes nothing new: the initial box is held until the first
 output. With an estimator and ``feedback``, the tracker's prior at each start is the centre of the
-estimator's newest estimate visible then. The estimator is handed, at each of its ticks, the
+estimator's newest estimate visible then (at frame k: the estimate of frame k). The estimator is handed, at each of its ticks, the
 outputs that became visible to it since its previous tick, each ``Stamped(value, t_capture,
 t_publish)`` with ``t_publish`` the time it reached the estimator (the paper's ``delay: ignore``
 is the estimator's business).
@@ -38,8 +43,12 @@ from .sequence import Sequence
 from .timing_profile import BlockProfile
 from .types import Box, Estimate, Motion, Stamped, TrackerOutput
 
-#: Blocks in intra-frame (data-flow) order. ``camera`` only delivers frames.
+#: The blocks. ``camera`` only delivers frames.
 BLOCKS = ("egomotion", "tracker", "estimator")
+#: Intra-frame order: the estimator's tick is split around the tracker, so the tracker's search
+#: centre at frame k is the estimate at frame k (camera motion up to k applied) and a detection
+#: published at t_k still reaches the estimate of frame k ("estimator+").
+ORDER = ("egomotion", "estimator", "tracker", "estimator+")
 LANES = ("camera",) + BLOCKS
 EVENTS = ("start", "publish", "skip")
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
@@ -280,6 +289,7 @@ def run_sequence(
     timing = protocol.timing(fps)
     objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
     active = [b for b in BLOCKS if objs[b] is not None]
+    objs_active = set(active) | ({"estimator+"} if estimator is not None else set())
     for b in active:
         if b not in timing.blocks:
             raise ValueError(f"protocol {type(protocol).__name__} gives no timing for block {b!r}")
@@ -327,7 +337,20 @@ def run_sequence(
                 image = sequence.image(k)
             return image
 
-        for b in active:
+        est_tick = None  # the estimator's call of this frame, finished after the tracker
+        for b in ORDER:
+            if b not in objs_active:
+                continue
+            if b == "estimator+":  # second half of this frame's estimator tick (see module doc)
+                if est_tick is not None:
+                    dets = _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
+                    t0 = clock()
+                    if dets:
+                        value = _call("estimator", k, tk, estimator.step, tk, (), dets)
+                        _check_estimate(value, k, tk)
+                        boards["estimator"].post(value, tk, k, est_tick)
+                    wall_ms["estimator"][k] += 1e3 * (clock() - t0)
+                continue
             if not turns[b][k]:
                 continue
             if busy_until[b] > tk + EPS:
@@ -361,7 +384,7 @@ def run_sequence(
                     value = _call(b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
                     _check_output(value, k, tk)
-            else:  # estimator
+            else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
                     t0 = clock()
                     value = _call(b, k, tk, obj.initialize, init_box, tk)
@@ -388,6 +411,8 @@ def run_sequence(
                     boards[b].post(value, tk, k, tk)
             else:
                 boards[b].post(value, tk, k, t_pub)
+                if b == "estimator":
+                    est_tick = t_pub
 
         # Zero-order hold: the newest output of the output block visible at t_k.
         ob = boards[out_block]

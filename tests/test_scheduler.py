@@ -131,18 +131,23 @@ def test_5hz_tracker_starts_every_sixth_frame_and_is_scored_one_period_later():
 def test_ltp_mata_order_and_feedback():
     tracker, est = FrameTracker(), LogEstimator()
     run = run_sequence(make_sequence(6), tracker, FrameEgoMotion(), est, LTP(), np.random.default_rng(0))
-    # Each frame: ego-motion, then the tracker (prior = the estimate of the previous frame), then the
-    # estimator, which already sees this frame's detection (zero latency): output x = k.
+    # Each frame: ego-motion, the estimator's first half (camera motion: the estimate of frame k,
+    # y = t_k, x still the previous detection), the tracker (prior = that estimate), then the
+    # estimator's second half with this frame's detection (zero latency): output x = k.
     np.testing.assert_array_equal(run.boxes[:, 0], [-1, 1, 2, 3, 4, 5])
     assert [c[1] for c in tracker.calls] == [0, 1, 2, 3, 4, 5]
     priors = [c[2] for c in tracker.calls[1:]]
-    assert priors[0] == pytest.approx((INIT.cx, 5.0))  # the initial estimate
+    assert priors[0] == pytest.approx((INIT.cx, 1 / 30 + 5.0))  # the initial box, moved to t_1
     for k, prior in enumerate(priors[1:], start=2):
-        assert prior == pytest.approx((k - 1 + 5.0, (k - 1) / 30 + 5.0))
-    for k, (t, motions, dets) in enumerate(est.ticks[1:], start=1):
-        assert t == pytest.approx(k / 30)
-        assert motions == [(k, k - 1, pytest.approx(k / 30), pytest.approx(k / 30))]
-        assert dets == [(k, pytest.approx(k / 30), pytest.approx(k / 30))]
+        assert prior == pytest.approx((k - 1 + 5.0, k / 30 + 5.0))
+    ticks = est.ticks[1:]
+    assert len(ticks) == 2 * 5
+    for k in range(1, 6):
+        (t1, motions1, dets1), (t2, motions2, dets2) = ticks[2 * k - 2], ticks[2 * k - 1]
+        assert t1 == pytest.approx(k / 30) and t2 == pytest.approx(k / 30)
+        assert motions1 == [(k, k - 1, pytest.approx(k / 30), pytest.approx(k / 30))] and dets1 == []
+        assert motions2 == [] and dets2 == [(k, pytest.approx(k / 30), pytest.approx(k / 30))]
+    assert events(run, "estimator", "start") == [0, 1, 2, 3, 4, 5]  # still one tick per frame
 
 
 def test_no_feedback_gives_no_prior():
@@ -168,10 +173,11 @@ def test_eop_10hz_mata_hand_timeline():
     # The estimator outputs at every frame (y = t), holding the detection's x.
     np.testing.assert_array_equal(run.boxes[:, 0], [-1] * 6 + [3] * 3 + [6] * 3)
     np.testing.assert_allclose(run.boxes[1:, 1], np.arange(1, 12) / 30)
-    # The prior of the tracker at frames 3, 6, 9 is the estimate of frames 2, 5, 8.
+    # The prior of the tracker at frames 3, 6, 9 is the estimate of those frames, which already
+    # holds the detections of frames 3 and 6 that arrived at frames 6 and 9.
     priors = [c[2] for c in tracker.calls[1:]]
-    assert [p[1] - 5.0 for p in priors] == pytest.approx([2 / 30, 5 / 30, 8 / 30])
-    assert [p[0] - 5.0 for p in priors] == pytest.approx([-1, -1, 3])
+    assert [p[1] - 5.0 for p in priors] == pytest.approx([3 / 30, 6 / 30, 9 / 30])
+    assert [p[0] - 5.0 for p in priors] == pytest.approx([-1, 3, 6])
 
 
 def test_eop_at_camera_rate_with_zero_latency_equals_ltp_frame_for_frame():
@@ -198,7 +204,7 @@ def test_dsp_equals_ltp_on_a_subsampled_copy():
     np.testing.assert_array_equal(a.scored, np.arange(n) % 3 == 0)
     np.testing.assert_allclose(a.boxes[a.scored], b.boxes, rtol=1e-12)
     assert t1.calls == t2.calls
-    assert len(e1.ticks) == len(e2.ticks) == 10
+    assert len(e1.ticks) == len(e2.ticks) == 1 + 2 * 9  # init, then two halves per kept frame
     for x, y in zip(e1.ticks[1:], e2.ticks[1:]):
         assert x[0] == pytest.approx(y[0]) and x[2] == pytest.approx(y[2]) and x[1] == pytest.approx(y[1])
     # Dropped frames hold the previous kept frame's output and are marked unscored.
