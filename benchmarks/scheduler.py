@@ -17,7 +17,7 @@ import numpy as np
 
 from mata_eval.scheduler import run_sequence
 from mata_eval.sequence import Sequence
-from mata_eval.types import Box, Estimate, Motion, TrackerOutput
+from mata_eval.types import Estimate, Motion, TrackerOutput
 
 
 class NoOpTracker:

@@ -169,7 +169,6 @@ def _write_manifest(result: ExportResult, extra: dict) -> Path:
            "versions": results.package_versions(), **extra}
     path = result.out_dir / MANIFEST
     results.atomic_write_text(path, json.dumps(doc, indent=1, default=str))
-    os.chmod(path, 0o644)   # readable like the graphs beside it (the atomic write makes it 0600)
     return path
 
 

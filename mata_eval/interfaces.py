@@ -16,7 +16,7 @@ from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from .sequence import Sequence
+from . import sequence
 from .types import Box, Estimate, Motion, Stamped, TrackerOutput
 
 
@@ -62,4 +62,4 @@ class Estimator(Protocol):
 class Dataset(Protocol):
     """A collection of sequences. Loading the list reads annotations only; frames load lazily."""
 
-    def sequences(self) -> list[Sequence]: ...
+    def sequences(self) -> list[sequence.Sequence]: ...

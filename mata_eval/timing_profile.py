@@ -118,8 +118,7 @@ def profile_from_samples(samples: Mapping[str, Any], machine: Mapping[str, Any] 
 
 def write_profile(profile: TimingProfile, path: str | Path) -> Path:
     """Write ``profile`` as JSON, or YAML for ``.yaml``/``.yml`` (atomically)."""
-    import os
-    import tempfile
+    from .results import atomic_write_text
 
     path = Path(path)
     doc: dict[str, Any] = {"format": FORMAT, "version": VERSION}
@@ -144,11 +143,7 @@ def write_profile(profile: TimingProfile, path: str | Path) -> Path:
         text = yaml.safe_dump(doc, sort_keys=False)
     else:
         text = json.dumps(doc, indent=1)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
     return path
 
 
