@@ -62,6 +62,7 @@ class SequenceSpec:
     out_of_view: bool = False    # the camera looks away until the target has left the image
     occlusion: Literal["none", "partial", "full"] = "none"  # a tree canopy on the target's path
     illumination: bool = False   # a cloud shadow darkens the scene for a while
+    camouflage: bool = False     # the target takes the colour of the ground where it starts
     draw_target: bool = True     # False renders the same scene without the target (tests)
 
     def __post_init__(self) -> None:
@@ -120,6 +121,7 @@ def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 7
         occlusion=("full" if rng.random() < 0.6 else "partial") if scenario == "occlusion" else "none",
         illumination=scenario == "crowd" or bool(rng.random() < 0.15),
     )
+    spec["camouflage"] = scenario in ("cruise", "crowd") and bool(rng.random() < 0.4)
     return SequenceSpec(name=name or f"syn{seed % 100000:05d}_{scenario}", seed=int(seed), n_frames=n_frames,
                         width=width, height=height, fps=fps,
                         texture_seed=int(texture_seed if texture_seed is not None else _derive(seed, 2)), **spec)
@@ -233,11 +235,16 @@ def _camera(L: np.ndarray, Z: float, yaw: float, tilt: float, roll: float, f: fl
     return G / G[2, 2]
 
 
-def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
+def _texture_size(width: int) -> int:
+    """Side of the square ground texture: 4096 px at 1280 px wide frames."""
+    return max(256, int(round(4096 * width / _REF_WIDTH)))
+
+
+def _plan(spec: SequenceSpec, ground: np.ndarray) -> tuple[_Plan, list[dict]]:
     rng = np.random.default_rng(_derive(spec.seed, 3))
     n, W, H = spec.n_frames, spec.width, spec.height
     s = W / _REF_WIDTH
-    T = max(256, int(round(4096 * s)))
+    T = _texture_size(W)
     centre = np.array([T / 2.0, T / 2.0])
     srng = np.random.default_rng(_derive(spec.seed, 4))
 
@@ -257,6 +264,11 @@ def _plan(spec: SequenceSpec) -> tuple[_Plan, list[dict]]:
     rel, heading = _kinematics(rng, n, speed, turn, accel, rng.uniform(0, 2 * np.pi))
     shift = centre - (rel.min(0) + rel.max(0)) / 2.0
     P = rel + shift
+    if spec.camouflage:  # background clutter: the median ground colour around the start
+        r0 = int(max(4, 3 * length))
+        x, y = (int(v) for v in np.clip(P[0], r0, T - r0 - 1))
+        patch = ground[y - r0:y + r0, x - r0:x + r0].reshape(-1, 3)
+        colour = np.clip(np.median(patch, axis=0) + np.random.default_rng(_derive(spec.seed, 6)).normal(0, 6, 3), 0, 255)
 
     # Camera: pursuit with lag, slow yaw/tilt/zoom/roll drift, shake, manoeuvres, OV spell.
     Z = 1000.0 * s
@@ -391,8 +403,8 @@ def ground_texture(texture_seed: int, size: int) -> np.ndarray:
 
 
 def _render(spec: SequenceSpec, sink: Callable[[int, np.ndarray], None]) -> RenderedSequence:
-    plan, events = _plan(spec)
-    ground = ground_texture(spec.texture_seed, plan.texture_size)
+    ground = ground_texture(spec.texture_seed, _texture_size(spec.width))
+    plan, events = _plan(spec, ground)
     n, W, H = spec.n_frames, spec.width, spec.height
     s = W / _REF_WIDTH
     gt_full = np.full((n, 4), np.nan)       # unclipped box of the projected silhouette
@@ -538,7 +550,8 @@ def attribute_flags(gt: np.ndarray, gt_full: np.ndarray, visible: np.ndarray, in
     foc = bool(np.any((occluded >= 0.95) & (in_image > 0.05)))
     poc = bool(np.any((occluded >= 0.1) & (occluded < 0.95) & (in_image > 0.05)))
     ov = bool(np.any(in_image < 0.95))
-    bc = bool(np.nanmean(contrast < 40.0) > 0.3) if np.any(np.isfinite(contrast)) else False
+    sampled = contrast[np.isfinite(contrast)]
+    bc = bool(np.mean(sampled < 40.0) > 0.3) if len(sampled) else False
     iv = bool(gain.max() / max(gain.min(), 1e-9) > 1.3)
     rel = np.unwrap(angle[ok]) if ok.any() else np.zeros(1)
     vc = bool(np.abs(rel - rel[0]).max() > np.deg2rad(60))

@@ -254,3 +254,23 @@ def test_camera_model_pure_translation_against_phase_correlation():
     f1 = cv2.warpPerspective(ground, G1, (128, 96)).astype(np.float32).mean(axis=2)
     (dx, dy), _ = cv2.phaseCorrelate(f0, f1)
     assert dx == pytest.approx(-5.0, abs=0.2) and dy == pytest.approx(3.0, abs=0.2)
+
+
+def test_camouflaged_target_gives_background_clutter():
+    base = dataclasses.replace(synth.make_spec(21, 30, 320, 240, scenario="cruise"), n_distractors=0,
+                               illumination=False, manoeuvres=0)
+
+    def colour_distance(spec):
+        r = synth.render_sequence(spec)
+        m = target_mask(spec, r)[0]
+        x, y, w, h = (int(round(v)) for v in r.groundtruth[0])
+        ring = np.zeros_like(m)
+        ring[max(0, y - h // 2):y + h + h // 2, max(0, x - w // 2):x + w + w // 2] = True
+        ring[y:y + h, x:x + w] = False
+        f = r.frames[0].astype(float)
+        return np.linalg.norm(f[m].mean(0) - f[ring].mean(0)), r.attributes
+
+    d_camo, a_camo = colour_distance(dataclasses.replace(base, camouflage=True))
+    d_plain, a_plain = colour_distance(dataclasses.replace(base, camouflage=False))
+    assert d_camo < 40 < d_plain
+    assert "BC" in a_camo and "BC" not in a_plain
