@@ -42,7 +42,7 @@ UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "V
 SCENARIOS = ("cruise", "manoeuvre", "outofview", "occlusion", "crowd")
 
 _REF_WIDTH = 1280.0  # geometry, speeds and attribute thresholds scale with width / 1280
-GENERATOR_VERSION = 2  # bump when the pixels a seed gives change (cache key of the suite)
+GENERATOR_VERSION = 3  # bump when the pixels a seed gives change (cache key of the suite)
 
 
 @dataclass(frozen=True)
