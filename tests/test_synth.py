@@ -218,7 +218,7 @@ def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkey
     for s, t in zip(seqs, again):
         assert s.attributes == t.attributes and np.array_equal(s.groundtruth, t.groundtruth, equal_nan=True)
         assert s.meta["homographies"].shape == (6, 3, 3)
-        assert s.image(5).shape == (H, W, 3)
+        assert s.image(5).shape == (H, W, 3) and s.meta["image_size"] == (W, H)
     other = SyntheticDataset(dataclasses.replace(params, seed=4))
     assert other.root != ds.root
     from mata_eval.datasets.annotations import DatasetError

@@ -97,14 +97,18 @@ def read_suite(root: str | Path, sequences: list[str] | None = None) -> list[Seq
     UAV123 loader, with the true homographies in ``meta["homographies"]``."""
     import dataclasses
 
-    from ..synth import load_true_homographies
+    from ..synth import load_true_homographies, read_suite_info
     from .uav123 import UAV123
 
     root = Path(root)
+    info = read_suite_info(root) or {}
+    sizes = {sp["name"]: (sp["width"], sp["height"]) for sp in info.get("sequences", [])}
     reader = UAV123(UAV123.Params(root=str(root), sequences=sequences))
     out = []
     for seq in reader.sequences():
         meta = {**seq.meta, "homographies": load_true_homographies(root, seq.name), "synthetic": True}
+        if seq.name in sizes:
+            meta["image_size"] = sizes[seq.name]
         out.append(dataclasses.replace(seq, meta=meta))
     return out
 
