@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import zlib
@@ -103,6 +104,7 @@ class OcclusionEvent:
     hit_points: np.ndarray
     alpha: float
     colour: tuple[float, float, float]
+    texture_seed: int = 0
 
     def active(self, k: int) -> bool:
         return self.start <= k <= self.end
@@ -113,7 +115,8 @@ class OcclusionEvent:
 
     def to_json(self) -> dict:
         return {"index": self.index, "shape": self.shape, "start": self.start, "end": self.end,
-                "alpha": self.alpha, "colour": list(self.colour), "hit_frames": list(self.hit_frames),
+                "alpha": self.alpha, "colour": list(self.colour), "texture_seed": self.texture_seed,
+                "hit_frames": list(self.hit_frames),
                 "hit_points": self.hit_points.tolist(), "polygon": self.polygon.tolist(),
                 "centres": self.centres.tolist()}
 
@@ -233,7 +236,7 @@ def plan_occlusions(groundtruth: np.ndarray, image_size: tuple[int, int], params
         colour = tuple(float(c) for c in rng.uniform(10, 90, 3) + np.array([0, rng.uniform(0, 60), 0]))
         events.append(OcclusionEvent(idx, shape, int(start), int(end), poly, path + wobble,
                                      tuple(int(f) for f in hit_frames), hits.reshape(-1, 2),
-                                     float(rng.uniform(*params.alpha)), colour))
+                                     float(rng.uniform(*params.alpha)), colour, int(rng.integers(2**31))))
     return events
 
 
@@ -266,6 +269,26 @@ def occluder_mask(events: Seq[OcclusionEvent], k: int, x0: int, y0: int, w: int,
     return mask
 
 
+def occluder_texture(e: OcclusionEvent) -> np.ndarray:
+    """(S, S, 3) float32 appearance of an event's occluder around its centre: its colour with
+    a vertical shading and smooth plus fine noise (an object, not a flat patch); cached."""
+    R = float(np.linalg.norm(e.polygon, axis=1).max())
+    return _texture(e.texture_seed, 2 * int(math.ceil(R)) + 10, e.colour)
+
+
+@functools.lru_cache(maxsize=64)
+def _texture(seed: int, side: int, colour: tuple[float, float, float]) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    smooth = cv2.GaussianBlur(rng.standard_normal((side, side), dtype=np.float32), (0, 0), max(1.0, side / 16))
+    smooth *= 14.0 / (smooth.std() + 1e-6)
+    fine = rng.standard_normal((side, side), dtype=np.float32) * 5.0
+    shade = np.linspace(0.85, 1.15, side, dtype=np.float32)[:, None, None]
+    tex = np.asarray(colour, np.float32)[None, None, :] * shade + (smooth + fine)[..., None]
+    tex = np.clip(tex, 0, 255)
+    tex.setflags(write=False)
+    return tex
+
+
 def composite(image: np.ndarray, events: Seq[OcclusionEvent], k: int) -> np.ndarray:
     """Frame k with the active occluders alpha-blended on (a new array; the input is untouched)."""
     out = image
@@ -285,10 +308,13 @@ def composite(image: np.ndarray, events: Seq[OcclusionEvent], k: int) -> np.ndar
         if out is image:
             out = image.copy()
         roi = out[y0:y1, x0:x1]
-        # a soft vertical shading gives the occluder some relief; hard-edged mask, uniform alpha
-        shade = np.linspace(0.85, 1.15, y1 - y0)[:, None, None]
-        colour = np.clip(np.asarray(e.colour)[None, None, :] * shade, 0, 255)
-        colour = np.broadcast_to(colour, roi.shape)
+        # the occluder's own texture moves with it (integer-pixel placement); hard-edged mask,
+        # uniform alpha
+        tex = occluder_texture(e)
+        c = e.centres[k - e.start]
+        px0 = int(round(c[0])) - tex.shape[1] // 2
+        py0 = int(round(c[1])) - tex.shape[0] // 2
+        colour = tex[y0 - py0:y1 - py0, x0 - px0:x1 - px0]
         blended = roi * (1.0 - e.alpha) + colour * e.alpha
         roi[m] = np.clip(blended[m] + 0.5, 0, 255).astype(np.uint8)
     return out
