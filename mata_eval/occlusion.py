@@ -452,7 +452,8 @@ def load_occlusion(root: str | Path, seq: str) -> np.ndarray:
 
 
 def write_augmented(sequences: Seq[Sequence], out: str | Path, params: OcclusionParams, seed: int, *,
-                    quality: int = 95, sheet_frames: int = 6, progress: bool = False) -> list[str]:
+                    quality: int = 95, sheet_frames: int = 6, progress: bool = False,
+                    overwrite: bool = False) -> list[str]:
     """Write augmented copies in the UAV123 layout (each sequence as its own video, frames from
     000001.jpg), ground truth unchanged, original attribute flags, per-frame occlusion metadata
     (``anno/UAV123/occlusion/``), true homographies when the input has them, and a contact sheet
@@ -460,6 +461,8 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
     from .synth import UAV123_ATTRIBUTES, _fmt_box, write_config_seqs
 
     out = Path(out)
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise FileExistsError(f"{out} exists and is not empty; choose another folder or overwrite it (--force)")
     anno = out / "anno" / "UAV123"
     (anno / "att").mkdir(parents=True, exist_ok=True)
     (out / "contact_sheets").mkdir(parents=True, exist_ok=True)
@@ -510,6 +513,7 @@ def add_cli(subparsers) -> None:
     p.add_argument("--duration", type=float, default=None, help="seconds per event")
     p.add_argument("--config", help="YAML file holding an occlusion block (the experiment's `occlusion:` keys)")
     p.add_argument("--quality", type=int, default=95, help="JPEG quality (default 95)")
+    p.add_argument("--force", action="store_true", help="write into OUT even if it is not empty")
     p.set_defaults(func=_cmd_augment)
 
 
@@ -545,6 +549,11 @@ def _cmd_augment(args: argparse.Namespace) -> int:
     except (ConfigError, KeyError, ValueError) as e:
         print(f"mata-eval augment: {e}")
         return 2
-    names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True)
+    try:
+        names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True,
+                                overwrite=args.force)
+    except FileExistsError as e:
+        print(f"mata-eval augment: {e}")
+        return 2
     print(f"wrote {len(names)} augmented sequences to {args.out} (contact sheets in {Path(args.out) / 'contact_sheets'})")
     return 0

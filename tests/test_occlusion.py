@@ -181,6 +181,7 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     name = synth.suite_specs(1, 8, 96, 64)[0].name
     assert (tmp_path / "out" / "data_seq" / "UAV123" / name / "000008.jpg").is_file()
     assert len(load_occlusion(tmp_path / "out", name)) == 8
+    assert args.func(args) == 2 and "not empty" in capsys.readouterr().out  # no silent overwrite
     # a suite written by `mata-eval synth` is read as it is (its own generation parameters),
     # and its true homographies travel with the augmented copy
     args = parser.parse_args(["augment", str(tmp_path / "out2"), "--root", str(tmp_path / "syn"), "--n-events", "1"])
