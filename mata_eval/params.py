@@ -80,6 +80,9 @@ def build_params(
         raise ConfigError(where(path), path, f"missing required parameter(s): {', '.join(missing)}")
     try:
         return params_cls(**kwargs)
+    except ConfigError as exc:  # a plugin's own checks that name a key path: add the line
+        kp = exc.keypath or path
+        raise ConfigError(where(kp), kp, exc.message) from None
     except (ValueError, TypeError) as exc:  # a plugin's own cross-field checks (__post_init__)
         raise ConfigError(where(path), path, str(exc)) from None
 

@@ -65,3 +65,19 @@ class Checked:
 def test_plugin_cross_field_check_gets_the_location():
     with pytest.raises(ConfigError, match=r"^exp.yaml:3: estimator: hi must be greater than lo"):
         build_params(Checked, {"lo": 2, "hi": 1}, ("estimator",), lambda kp: "exp.yaml:3")
+
+
+@dataclass(frozen=True)
+class KeyChecked:
+    shapes: list[str] = param(["circle"], "occluder shapes")
+
+    def __post_init__(self):
+        if "hexagon" in self.shapes:
+            raise ConfigError("", ("occlusion", "shapes"), "unknown shape 'hexagon'")
+
+
+def test_plugin_check_naming_a_key_gets_that_keys_line():
+    lines = {("occlusion",): "exp.yaml:5", ("occlusion", "shapes"): "exp.yaml:6"}
+    with pytest.raises(ConfigError) as err:
+        build_params(KeyChecked, {"shapes": ["hexagon"]}, ("occlusion",), lambda kp: lines[tuple(kp)])
+    assert str(err.value) == "exp.yaml:6: occlusion.shapes: unknown shape 'hexagon'"
