@@ -66,6 +66,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     scores = evaluate_experiment(exp, only=args.runs)
     print(render_table(scores, "terminal"))
+    if any(s.summary.groups for s in scores):
+        print(render_table(scores, "terminal", table="challenges"))
+    for s in scores:
+        occ = s.summary.occluded_frames
+        if occ is not None:
+            print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} sequences: "
+                  f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
     plots = plot_curves(scores, exp.output / "report")
     for p in plots:
         print(f"plot: {p}")

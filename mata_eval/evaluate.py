@@ -206,6 +206,7 @@ def score_results(
     attrs: dict[str, tuple[str, ...]] = {}
     missing: list[str] = []
     freqs = []
+    occluded: dict[str, SequenceScores] = {}
     for seq in sequences:
         res = found.get(seq.name)
         if res is None:
@@ -220,10 +221,30 @@ def score_results(
         except ValueError as exc:
             raise ValueError(f"{res.source}: {exc}") from None
         attrs[seq.name] = tuple(sorted(seq.attributes))
+        occ = occluded_frame_scores(res, seq, profile)
+        if occ is not None:
+            occluded[seq.name] = occ
         if res.wall_ms:
             freqs.append(metrics.block_frequencies(res.wall_ms, len(seq), seq.fps))
     summary = metrics.aggregate(((per_seq[n], attrs[n]) for n in per_seq), groups)
+    if occluded:
+        summary = dataclasses.replace(summary, occluded_frames=metrics.summarize(occluded.values()))
     return per_seq, attrs, summary, missing, metrics.combine_frequencies(freqs)
+
+
+def occluded_frame_scores(res: SequenceResult, seq: Sequence, profile: str) -> SequenceScores | None:
+    """Scores on the frames that an augmented occluder covers (paper 3.2; the per-frame covered
+    fraction is ``seq.meta["occlusion"]``), or None for a sequence without occluded frames."""
+    cover = seq.meta.get("occlusion")
+    if cover is None:
+        return None
+    mask = np.nan_to_num(np.asarray(cover, dtype=float)) > 0
+    if res.scored is not None:
+        mask &= np.asarray(res.scored, dtype=bool)
+    if not mask.any():
+        return None
+    return metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile, scored=mask,
+                                  annotated=seq.annotated)
 
 
 def evaluate_results(

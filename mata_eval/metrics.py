@@ -506,6 +506,8 @@ class Aggregate:
     attributes: dict[str, Summary]
     groups: dict[str, Summary]
     group_definitions: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: means over the frames an augmented occluder covers (sequences with occluded frames only)
+    occluded_frames: Summary | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -513,6 +515,7 @@ class Aggregate:
             "attributes": {k: v.to_dict() for k, v in self.attributes.items()},
             "groups": {k: v.to_dict() for k, v in self.groups.items()},
             "group_definitions": {k: list(v) for k, v in self.group_definitions.items()},
+            "occluded_frames": None if self.occluded_frames is None else self.occluded_frames.to_dict(),
         }
 
     @classmethod
@@ -522,6 +525,7 @@ class Aggregate:
             attributes={k: Summary.from_dict(v) for k, v in d["attributes"].items()},
             groups={k: Summary.from_dict(v) for k, v in d["groups"].items()},
             group_definitions={k: tuple(v) for k, v in d.get("group_definitions", {}).items()},
+            occluded_frames=Summary.from_dict(d["occluded_frames"]) if d.get("occluded_frames") else None,
         )
 
 
