@@ -406,3 +406,15 @@ def test_sincos_position_embedding():
         for c in range(3):
             expected = np.r_[np.sin(c * w), np.cos(c * w), np.sin(r * w), np.cos(r * w)]
             np.testing.assert_allclose(pe[r * 3 + c], expected, atol=1e-7)
+
+
+def test_random_weights_are_seeded_and_leave_the_global_rng_alone():
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    a = MixFormerV2(MixFormerV2.Params(random_weights=True, seed=5)).network()
+    assert torch.equal(torch.rand(3), expected)
+    b = MixFormerV2(MixFormerV2.Params(random_weights=True, seed=5)).network()
+    c = MixFormerV2(MixFormerV2.Params(random_weights=True, seed=6)).network()
+    assert torch.equal(a.backbone.reg_tokens, b.backbone.reg_tokens)
+    assert not torch.equal(a.backbone.reg_tokens, c.backbone.reg_tokens)

@@ -177,8 +177,9 @@ class MixFormerV2:
                 torch.set_num_threads(p.threads)
             cfg = getattr(vit, self.variant.config)
             if p.random_weights:
-                torch.manual_seed(p.seed)
-                net = vit.MixFormerV2Net(cfg)
+                with torch.random.fork_rng(devices=[]):  # seeded, without touching the global RNG
+                    torch.manual_seed(p.seed)
+                    net = vit.MixFormerV2Net(cfg)
             else:
                 with torch.device("meta"):
                     net = vit.MixFormerV2Net(cfg)

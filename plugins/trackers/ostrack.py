@@ -102,8 +102,9 @@ class OSTrack:
             if p.threads > 0:
                 torch.set_num_threads(p.threads)
             if p.random_weights:
-                torch.manual_seed(p.seed)
-                net = vit.OSTrackNet(vit.OSTRACK_256)
+                with torch.random.fork_rng(devices=[]):  # seeded, without touching the global RNG
+                    torch.manual_seed(p.seed)
+                    net = vit.OSTrackNet(vit.OSTRACK_256)
             else:
                 with torch.device("meta"):
                     net = vit.OSTrackNet(vit.OSTRACK_256)
