@@ -95,7 +95,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mata-eval", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="mata-eval",
+        description="Evaluate and run single-object trackers on UAVs as they run on board: "
+                    "MATA (tracker + ego-motion + homography EKF), the EOP protocol and NT2F.")
     parser.add_argument("--version", action="version", version=f"mata-eval {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
