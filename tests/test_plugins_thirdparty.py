@@ -81,3 +81,10 @@ def test_third_party_tracker_runs_from_yaml(site, tmp_path):
     gt = np.loadtxt(seq / "groundtruth.txt", delimiter=",")
     assert pred.shape == (12, 4)
     np.testing.assert_allclose(pred, gt, atol=1.0)
+
+
+def test_readme_example_is_the_tested_plugin():
+    readme = (HERE.parent / "README.md").read_text()
+    code = (HERE / "thirdparty_plugin" / "mata_eval_template_tracker" / "__init__.py").read_text()
+    body = code.split("\n", 2)[2].lstrip("\n")  # without the module docstring
+    assert f"```python\n{body}```" in readme
