@@ -304,14 +304,17 @@ def ablation_table(runs: Sequence[PlacedRun]) -> PaperTable:
     vary = len(trackers) > 1
     ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker), number(i_r)))
     rows, blocks = [], []
+    count = 0
     for i, r in ordered:
         if vary and (not rows or rows[-1][0] != r.tracker):
             blocks.append(len(rows))
+            count = 0
+        count += 1
         ego, ekf, score, details = ablation_marks(r.config)
         m = _CONFIG_NUMBER.match(r.name)
         s = r.scores.summary.overall
         rows.append(([r.tracker] if vary else [])
-                    + [m.group(1) if m else str(i + 1), _mark(ego), _mark(ekf), _mark(score), details,
+                    + [m.group(1) if m else str(count), _mark(ego), _mark(ekf), _mark(score), details,
                        _pct(s.pr), _pct(s.sr), _pct(s.msr), _pct(s.nt2f)])
     if not vary:
         blocks = [0, 2, 3] if len(rows) >= 4 else [0]
@@ -436,7 +439,12 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> PaperTable:
         raise ValueError(f"unknown paper table {kind!r}; expected one of {', '.join(PAPER_TABLES)}")
     if not runs:
         raise PlacementError(f"{kind} table: no runs given")
-    return BUILDERS[kind](list(runs))
+    t = BUILDERS[kind](list(runs))
+    for r in runs:  # a mean over fewer sequences must not pass unnoticed
+        if r.scores.failures or r.scores.missing:
+            t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
+                           f"sequence(s) are not in its means ({r.scores.summary.overall.n_sequences} sequences)")
+    return t
 
 
 # --- rendering --------------------------------------------------------------------------------
@@ -530,6 +538,7 @@ def to_latex(t: PaperTable, label: str | None = None) -> str:
         out.append("    " + " & ".join(cells) + r" \\")
     out += [r"    \bottomrule", r"  \end{tabular}", rf"  \caption{{{latex_escape(t.caption)}}}",
             rf"  \label{{{label or 'tab:' + t.key}}}", r"\end{table*}"]
+    out += [f"% {n}" for n in t.notes]
     return "\n".join(out) + "\n"
 
 

@@ -278,3 +278,13 @@ def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):
     assert [(r[0], r[5]) for r in rows[2:]] == [
         ("VitTrack", "MATA"), ("KCF", "KCF (baseline)"),
         ("", "delay compensation, confidence gate tau_ewma = 0.05")]
+
+
+def test_failed_sequences_are_noted_under_the_table(tmp_path):
+    d = make_run(tmp_path, "a", config(), {"s1": 5})
+    results.write_failure(d, "s2", "BlockError: tracker failed", "traceback")
+    (d / "scores.json").unlink()
+    evaluate_run(d, [Sequence("s1", np.tile(GT, (N, 1))), Sequence("s2", np.tile(GT, (N, 1)))])
+    t = build_table("protocols", load_runs([d]))
+    assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (1 sequences)"]
+    assert "- a: 1 failed" in render_paper_table(t, "markdown")
