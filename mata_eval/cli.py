@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import sys
 from pathlib import Path
@@ -52,7 +53,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     exp = load_experiment(args.experiment)
     if args.output:
-        exp = type(exp)(exp.name, exp.path, Path(args.output).resolve(), exp.runs)
+        exp = dataclasses.replace(exp, output=Path(args.output).resolve())
     print(f"experiment {exp.name}: {len(exp.runs)} run(s) -> {exp.output}")
     try:
         outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,

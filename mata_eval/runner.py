@@ -119,7 +119,7 @@ def run_one(exp: Experiment, spec: RunSpec, seq: Sequence) -> SequenceOutcome:
 _WORKER_EXP: Experiment | None = None
 
 
-def _init_worker(exp_path: str, cwd: str) -> None:
+def _init_worker(exp_path: str, cwd: str, output: str) -> None:
     global _WORKER_EXP
     os.chdir(cwd)
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -127,7 +127,8 @@ def _init_worker(exp_path: str, cwd: str) -> None:
     import cv2
 
     cv2.setNumThreads(1)
-    _WORKER_EXP = load_experiment(exp_path)
+    exp = load_experiment(exp_path)
+    _WORKER_EXP = dataclasses.replace(exp, output=Path(output))  # e.g. `mata-eval run -o DIR`
 
 
 def _worker_task(run_name: str, index: int) -> SequenceOutcome:
@@ -176,7 +177,7 @@ def run_experiment(
                 bar.update()
         else:
             with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
-                                     initargs=(str(exp.path), os.getcwd())) as pool:
+                                     initargs=(str(exp.path), os.getcwd(), str(exp.output))) as pool:
                 pending = {pool.submit(_worker_task, spec.name, i) for spec, i, _ in tasks}
                 while pending:
                     done, pending = wait(pending, return_when=FIRST_COMPLETED)

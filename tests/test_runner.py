@@ -141,3 +141,25 @@ def test_changed_config_does_not_mix_with_old_results(tmp_path):
         run_experiment(changed, jobs=1, progress=False, log=lambda s: None)
     outcomes = run_experiment(changed, jobs=1, force=True, progress=False, log=lambda s: None)
     assert {o.status for o in outcomes} == {"done", "failed"}
+
+
+def test_worker_processes_write_where_the_driver_says(tmp_path, monkeypatch):
+    """With --jobs 2 and an output folder given on the command line, the worker processes (which
+    reload the experiment file) write into that folder, not into the file's `output`."""
+    reg = load_registry()
+    if "synthetic" not in reg.plugins["dataset"] or "kcf" not in reg.plugins["tracker"]:
+        pytest.skip("the synthetic dataset or the kcf tracker is not installed")
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(textwrap.dedent("""\
+        output: from_file
+        dataset: {name: synthetic, n_sequences: 2, n_frames: 8, width: 160, height: 96, jobs: 1}
+        tracker: {name: kcf}
+        """))
+    from mata_eval.cli import main
+
+    assert main(["run", str(exp_file), "-j", "2", "-q", "-o", str(tmp_path / "given")]) == 0
+    written = sorted(p.name for p in (tmp_path / "given" / "exp").glob("*.txt"))
+    assert len(written) == 2
+    assert not (tmp_path / "from_file").exists()
