@@ -109,7 +109,7 @@ def test_embedded_is_table_4_with_a_profile_per_tracker(name):
             assert proto["tracker_hz"] == "profile" and proto["tracker_latency"] == "period"
             prof = read_profile(proto["latency_profile"])
             assert prof.machine["tracker"] == r.tracker.name  # each tracker its own profile
-            assert 8.0 < prof.block("tracker").rate_hz < 12.0  # the paper's ~10 Hz device
+            assert 7.5 < prof.block("tracker").rate_hz < 12.5  # around the paper's ~10 Hz device
             scales = {x.resolved["protocol"].get("time_scale") for x in exp.runs
                       if x.resolved["protocol"]["name"] == "vot_rt"}
             assert scales == {prof.machine["time_scale"]}  # the emulated device is the same one
