@@ -34,7 +34,8 @@ def crop_square(image: np.ndarray, x1: int, y1: int, size: int, output_size: int
     x2, y2 = x1 + size, y1 + size
     left, top = max(0, -x1), max(0, -y1)
     right, bottom = max(0, x2 - w), max(0, y2 - h)
-    inside = image[max(y1, 0):min(y2, h), max(x1, 0):min(x2, w)]
+    # ends clamped at 0 too: a negative end would index from the far side of the image
+    inside = image[max(y1, 0):max(min(y2, h), 0), max(x1, 0):max(min(x2, w), 0)]
     if inside.size == 0:  # the square lies entirely outside the image
         channels = image.shape[2] if image.ndim == 3 else 1
         value = np.broadcast_to(np.asarray(border_value, dtype=float).ravel()[:channels], (channels,))

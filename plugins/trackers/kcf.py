@@ -170,11 +170,13 @@ class KCFTracker:
         y0 = int(round(cy - wh / 2.0))
         H, W = image.shape[:2]
         xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x0 + ww, W), min(y0 + wh, H)
-        if xb <= xa or yb <= ya:  # entirely outside: clamp to the nearest image pixel
-            xa, xb = min(max(x0, 0), W - 1), min(max(x0, 0), W - 1) + 1
-            ya, yb = min(max(y0, 0), H - 1), min(max(y0, 0), H - 1) + 1
-        roi = image[ya:yb, xa:xb]
-        pads = (ya - y0, y0 + wh - yb, xa - x0, x0 + ww - xb)
+        if xb <= xa or yb <= ya:  # entirely outside: the nearest image pixel, replicated
+            near = image[min(max(y0, 0), H - 1), min(max(x0, 0), W - 1)]
+            roi = np.broadcast_to(near, (wh, ww) + image.shape[2:])
+            pads = (0, 0, 0, 0)  # (padding up to the window would allocate its distance squared)
+        else:
+            roi = image[ya:yb, xa:xb]
+            pads = (ya - y0, y0 + wh - yb, xa - x0, x0 + ww - xb)
         if any(v > 0 for v in pads):
             t, b, l, r = (max(0, v) for v in pads)
             roi = cv2.copyMakeBorder(roi, t, b, l, r, cv2.BORDER_REPLICATE)

@@ -64,7 +64,7 @@ def hann_centered(n: int) -> np.ndarray:
 
 def to_blob(patch_bgr: np.ndarray, size: int, normalisation: str = "opencv") -> np.ndarray:
     """Resize to ``size`` (bilinear) and normalise (see :func:`blob_scale`), NCHW float32."""
-    if patch_bgr.shape[0] != size:
+    if patch_bgr.shape[:2] != (size, size):
         patch_bgr = cv2.resize(patch_bgr, (size, size), interpolation=cv2.INTER_LINEAR)
     mean, scale, swap = blob_scale(normalisation)
     if swap:
