@@ -11,7 +11,8 @@ import json
 import os
 import traceback
 import zlib
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable
 
@@ -139,6 +140,21 @@ def _worker_task(run_name: str, index: int) -> SequenceOutcome:
 
 # --- driver -----------------------------------------------------------------------------------
 
+def _run_pool(exp: Experiment, tasks: list, jobs: int,
+              done: Callable[[SequenceOutcome], None]) -> list:
+    """Run ``tasks`` in ``jobs`` worker processes; returns the tasks lost to a broken pool."""
+    lost = []
+    with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
+                             initargs=(str(exp.path), os.getcwd(), str(exp.output))) as pool:
+        futures = {pool.submit(_worker_task, spec.name, i): (spec, i, seq) for spec, i, seq in tasks}
+        for fut in as_completed(futures):
+            try:
+                done(fut.result())
+            except BrokenProcessPool:
+                lost.append(futures[fut])
+    return lost
+
+
 def run_experiment(
     exp: Experiment,
     *,
@@ -176,16 +192,20 @@ def run_experiment(
                 outcomes.append(run_one(exp, spec, seq))
                 bar.update()
         else:
-            with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
-                                     initargs=(str(exp.path), os.getcwd(), str(exp.output))) as pool:
-                pending = {pool.submit(_worker_task, spec.name, i) for spec, i, _ in tasks}
-                while pending:
-                    done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for fut in done:
-                        outcome = fut.result()
-                        outcomes.append(outcome)
-                        bar.set_postfix_str(f"{outcome.run}/{outcome.sequence}")
-                        bar.update()
+            def done(outcome: SequenceOutcome) -> None:
+                outcomes.append(outcome)
+                bar.set_postfix_str(f"{outcome.run}/{outcome.sequence}")
+                bar.update()
+
+            # A worker killed by the OS (out of memory, a crash in native code) breaks the pool
+            # and every task in flight with it: rerun those one process each, which finds the
+            # sequence that kills its process and records it as failed; the others complete.
+            for spec, i, seq in _run_pool(exp, tasks, jobs, done):
+                if _run_pool(exp, [(spec, i, seq)], 1, done):
+                    reason = ("worker process died while running this sequence (killed by the "
+                              "operating system, e.g. out of memory, or a crash in native code)")
+                    results.write_failure(run_dir(exp, spec), seq.name, reason, "")
+                    done(SequenceOutcome(spec.name, seq.name, "failed", reason))
     finally:
         bar.close()
     for o in outcomes:

@@ -4,6 +4,7 @@ redoes; a changed configuration never mixes with old results."""
 from __future__ import annotations
 
 import json
+import os
 import textwrap
 from dataclasses import dataclass
 
@@ -163,3 +164,53 @@ def test_worker_processes_write_where_the_driver_says(tmp_path, monkeypatch):
     written = sorted(p.name for p in (tmp_path / "given" / "exp").glob("*.txt"))
     assert len(written) == 2
     assert not (tmp_path / "from_file").exists()
+
+
+class KillerTracker(ShiftTracker):
+    """Kills its own process (as the OS does on out-of-memory) on the 'nan' sequence."""
+
+    name = "killer"
+
+    def initialize(self, image, box):
+        super().initialize(image, box)
+        self.victim = box.y == 20.0
+
+    def track(self, image, prior=None):
+        if self.victim:
+            import signal
+
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().track(image, prior)
+
+
+class VictimDataset(ToyDataset):
+    name = "victims"
+
+    def sequences(self):
+        gt = np.array([[10.0 + k, 10.0, 8.0, 8.0] for k in range(self.params.n)])
+        gt_victim = gt.copy()
+        gt_victim[:, 1] = 20.0
+        return [Sequence(f"s{i}", gt_victim if i == 2 else gt, 30.0, loader=_image) for i in range(5)]
+
+
+def test_a_worker_killed_by_the_os_fails_only_its_sequence(tmp_path, monkeypatch):
+    import multiprocessing
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("the fake plugins reach the workers only through fork")
+    import mata_eval.config
+
+    base = _registry()
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
+    reg = Registry({**base.plugins, "dataset": {"victims": entry("dataset", VictimDataset)},
+                    "tracker": {"killer": entry("tracker", KillerTracker)}}, ())
+    monkeypatch.setattr(mata_eval.config, "load_registry", lambda: reg)
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: victims}}\ntracker: {{name: killer}}\n")
+    exp = load_experiment(p, reg)
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=2, progress=False, log=lambda s: None)}
+    assert {k: o.status for k, o in outcomes.items()} == {"s0": "done", "s1": "done", "s2": "failed",
+                                                           "s3": "done", "s4": "done"}
+    assert "worker process died" in outcomes["s2"].reason
+    failure = json.loads((tmp_path / "out" / "exp" / "s2.failed.json").read_text())
+    assert "killed by the operating system" in failure["reason"]
