@@ -85,11 +85,22 @@ def test_eop_draws_tracker_latency_from_profile(tmp_path):
     # Each call starts at the first frame at or after the previous publish (camera-rate turns).
     for t_pub, t_next in zip(pubs, starts[1:]):
         assert t_next == pytest.approx(np.ceil(t_pub * 30 - 1e-6) / 30)
-    # The profile's effective rate (1 / mean = 10 Hz) as the tracker's rate, one-period latency.
+    # `tracker_hz: profile`: the block runs as fast as the profile says (1 / mean = 10 Hz): a
+    # turn at every camera frame and a one-period latency of 0.1 s.
     proto = EOP(EOP.Params(tracker_hz="profile", latency_profile=str(path)))
     timing = proto.timing(30.0)
-    assert timing.blocks["tracker"].hz == pytest.approx(10.0)
+    assert timing.blocks["tracker"].hz == pytest.approx(30.0)
     assert timing.blocks["tracker"].latency.draw(None, 0.0) == pytest.approx(0.1)
+
+
+def test_profile_rate_that_does_not_divide_the_camera_rate(tmp_path):
+    """A 9.5 Hz tracker (105.3 ms a call) on a 30 Hz camera: busy for 3.16 frames, it starts at
+    the first frame after each call, every 4th frame (7.5 Hz), like on the board; it does not lose
+    every other turn of a 9.5 Hz grid (frames 0, 4, 10, 16, ... = 5.5 Hz)."""
+    path = write_profile(profile_from_samples({"tracker": [1 / 9.5]}), tmp_path / "p.json")
+    proto = EOP(EOP.Params(tracker_hz="profile", latency_profile=str(path)))
+    run = run_sequence(make_sequence(30), FrameTracker(), None, None, proto, np.random.default_rng(0))
+    assert [e.frame for e in run.trace if e.block == "tracker" and e.event == "start"] == [0, 4, 8, 12, 16, 20, 24, 28]
 
 
 def test_profile_without_the_block(tmp_path):

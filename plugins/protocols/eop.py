@@ -20,7 +20,8 @@ from mata_eval.timing_profile import TimingProfile, read_profile
 
 CONSUMERS = BLOCKS + ("output",)
 _LATENCY_HELP = "'period' (one period of its rate), 'none', seconds, or 'profile' (drawn from latency_profile)"
-_RATE_HELP = "Hz, null (camera rate) or 'profile' (the profile's effective rate)"
+_RATE_HELP = ("Hz, null (camera rate) or 'profile' (as fast as the profiled block: it starts at the "
+              "first frame after its previous call, whose period is the profile's effective rate)")
 
 
 def _check_rate(key: str, value: Any) -> None:
@@ -105,14 +106,18 @@ class EOP:
         rate = getattr(self.params, f"{block}_hz")
         lat = getattr(self.params, f"{block}_latency")
         if rate is None:
-            hz = fps
+            hz = period_hz = fps
         elif rate == "profile":
-            hz = self._block_profile(block).rate_hz
+            # As fast as the measured block goes: a turn at every camera frame, busy for its
+            # period, so it starts at the first frame after it is free (a 9.5 Hz block on a
+            # 30 Hz camera takes every 4th frame, as on the board; a 9.5 Hz grid would make it
+            # find itself busy at every other grid tick).
+            hz, period_hz = fps, self._block_profile(block).rate_hz
         else:
-            hz = float(rate)
+            hz = period_hz = float(rate)
         latency: Latency
         if lat == "period":
-            latency = FixedLatency(1.0 / min(hz, fps))  # a block cannot run faster than the camera
+            latency = FixedLatency(1.0 / min(period_hz, fps))  # no block runs faster than the camera
         elif lat == "none":
             latency = FixedLatency(0.0)
         elif lat == "profile":
