@@ -492,6 +492,8 @@ def to_markdown(t: PaperTable) -> str:
 
 
 _TEX_MARK = {CHECK: r"$\checkmark$", CROSS: r"$\times$"}
+# column names written in math in LaTeX (a bare "|" is not a bar in every font encoding)
+_TEX_COLUMNS = {"|dSR|": r"$\Delta$SR", "|dNT2F|": r"$\Delta$NT2F"}
 
 
 def to_latex(t: PaperTable, label: str | None = None) -> str:
@@ -520,7 +522,8 @@ def to_latex(t: PaperTable, label: str | None = None) -> str:
             sep = "" if gi == len(t.groups) - 1 else "|"
             cells.append(rf"\multicolumn{{{span}}}{{c{sep}}}{{{latex_escape(g)}}}")
         out.append("    " + " & ".join(cells) + r" \\")
-        out.append("    " + " & ".join([""] * n_stub + [latex_escape(c) for c in t.columns]) + r" \\")
+        out.append("    " + " & ".join([""] * n_stub + [_TEX_COLUMNS.get(c) or latex_escape(c) for c in t.columns])
+                   + r" \\")
     else:
         out.append("    " + " & ".join(latex_escape(c) for c in t.stub + t.columns) + r" \\")
     out.append(r"    \midrule")

@@ -182,6 +182,9 @@ def test_embedded_table_differences_and_frequencies(tmp_path):
     assert rows[3] == ["", "✓", "70.0", "70.0", "10.5", "5.0", "5.0", "15.0", "30.0", "30.0", "30.0"]
     # mean |dSR|: EOP (10 + 5) / 2 = 7.5, LTP (40 + 30) / 2 = 35 -> 4.7x
     assert "mean |Delta SR|: EOP 7.5, LTP 35.0 points (LTP / EOP = 4.7x)" in t.notes
+    tex = to_latex(t)  # the paper's column names; differences are absolute (its caption)
+    assert r"& SR & NT2F & Freq. & $\Delta$SR & $\Delta$NT2F & Freq. & $\Delta$SR & $\Delta$NT2F & Freq. \\" in tex
+    assert "|" not in tex.split(r"\midrule", 1)[1].split(r"\bottomrule")[0]
 
 
 def test_embedded_table_rejects_other_protocols(tmp_path):
