@@ -185,18 +185,17 @@ def run_experiment(
 
     jobs = jobs or default_jobs()
     bar = tqdm(total=len(tasks), desc=exp.name, unit="seq", disable=not progress or not tasks)
+
+    def done(outcome: SequenceOutcome) -> None:
+        outcomes.append(outcome)
+        bar.set_postfix_str(f"{outcome.run}/{outcome.sequence}")
+        bar.update()
+
     try:
         if jobs == 1 or len(tasks) <= 1:
             for spec, _, seq in tasks:
-                bar.set_postfix_str(f"{spec.name}/{seq.name}")
-                outcomes.append(run_one(exp, spec, seq))
-                bar.update()
+                done(run_one(exp, spec, seq))
         else:
-            def done(outcome: SequenceOutcome) -> None:
-                outcomes.append(outcome)
-                bar.set_postfix_str(f"{outcome.run}/{outcome.sequence}")
-                bar.update()
-
             # A worker killed by the OS (out of memory, a crash in native code) breaks the pool
             # and every task in flight with it: rerun those one process each, which finds the
             # sequence that kills its process and records it as failed; the others complete.
