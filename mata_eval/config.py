@@ -46,8 +46,7 @@ from .errors import ConfigError
 from .params import build_params
 from .registry import Registry, load_registry
 
-PLUGIN_KEYS = {"dataset": "dataset", "tracker": "tracker", "egomotion": "egomotion",
-               "estimator": "estimator", "protocol": "protocol"}
+PLUGIN_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")  # = plugin kinds
 NULLABLE = {"egomotion", "estimator", "occlusion"}
 TOP_LEVEL = {"name", "description", "seed", "output", "dataset", "occlusion", "tracker",
              "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix"}
@@ -67,7 +66,6 @@ class PluginBlock:
     name: str
     cls: type
     params: Any
-    raw: dict
 
     def create(self) -> Any:
         """A fresh instance (one per sequence, so no state leaks between sequences)."""
@@ -265,8 +263,8 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
 
     blocks: dict[str, PluginBlock | None] = {}
     resolved: dict[str, Any] = {}
-    for key, kind in PLUGIN_KEYS.items():
-        block = _plugin_block(kind, key, cfg[key], where, registry)
+    for key in PLUGIN_KEYS:
+        block = _plugin_block(key, cfg[key], where, registry)
         blocks[key] = block
         resolved[key] = None if block is None else {"name": block.name, **dataclasses.asdict(block.params)}
 
@@ -305,7 +303,8 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
                    blocks["estimator"], blocks["protocol"], occlusion, feedback, profile, resolved)
 
 
-def _plugin_block(kind: str, key: str, value: Any, where, registry: Registry) -> PluginBlock | None:
+def _plugin_block(kind: str, value: Any, where, registry: Registry) -> PluginBlock | None:
+    key = kind
     if value is None:
         if key in NULLABLE:
             return None
@@ -323,4 +322,4 @@ def _plugin_block(kind: str, key: str, value: Any, where, registry: Registry) ->
     except KeyError as exc:
         raise ConfigError(where((key, "name")), (key, "name"), str(exc.args[0])) from None
     params = build_params(entry.cls.Params, {k: v for k, v in value.items() if k != "name"}, (key,), where)
-    return PluginBlock(kind, name, entry.cls, params, dict(value))
+    return PluginBlock(kind, name, entry.cls, params)
