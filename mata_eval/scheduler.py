@@ -289,7 +289,6 @@ def run_sequence(
     timing = protocol.timing(fps)
     objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
     active = [b for b in BLOCKS if objs[b] is not None]
-    objs_active = set(active) | ({"estimator+"} if estimator is not None else set())
     for b in active:
         if b not in timing.blocks:
             raise ValueError(f"protocol {type(protocol).__name__} gives no timing for block {b!r}")
@@ -339,19 +338,16 @@ def run_sequence(
 
         est_tick = None  # the estimator's call of this frame, finished after the tracker
         for b in ORDER:
-            if b not in objs_active:
-                continue
             if b == "estimator+":  # second half of this frame's estimator tick (see module doc)
-                if est_tick is not None:
-                    dets = _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
+                dets = [] if est_tick is None else _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
+                if dets:
                     t0 = clock()
-                    if dets:
-                        value = _call("estimator", k, tk, estimator.step, tk, (), dets)
-                        _check_estimate(value, k, tk)
-                        boards["estimator"].post(value, tk, k, est_tick)
+                    value = _call("estimator", k, tk, estimator.step, tk, (), dets)
                     wall_ms["estimator"][k] += 1e3 * (clock() - t0)
+                    _check_estimate(value, k, tk)
+                    boards["estimator"].post(value, tk, k, est_tick)
                 continue
-            if not turns[b][k]:
+            if b not in turns or not turns[b][k]:
                 continue
             if busy_until[b] > tk + EPS:
                 trace.append(TraceEvent(b, "skip", k, tk))
