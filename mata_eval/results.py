@@ -3,8 +3,6 @@ prediction file ``<seq>.txt`` is written last, so its presence marks a finished 
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 import platform
@@ -12,7 +10,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -79,16 +77,6 @@ def read_predictions(path: Path) -> np.ndarray:
         except ValueError:
             raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}") from None
     return np.asarray(rows, dtype=float).reshape(-1, 4)
-
-
-def csv_text(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    for row in rows:
-        w.writerow(["" if (isinstance(v, float) and np.isnan(v)) else (f"{v:.4f}" if isinstance(v, float) else v)
-                    for v in row])
-    return buf.getvalue()
 
 
 def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, trace_csv: str) -> None:

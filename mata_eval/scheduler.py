@@ -168,18 +168,6 @@ class SequenceRun:
     trace: tuple[TraceEvent, ...]
     rates_hz: Mapping[str, float]
 
-    def frame_rows(self) -> list[dict[str, Any]]:
-        """Rows of ``<seq>.frames.csv``: frame, scored, confidence, ``<block>_ms``..., source_frame."""
-        rows = []
-        for k in range(len(self.boxes)):
-            row: dict[str, Any] = {"frame": k, "scored": int(self.scored[k]),
-                                   "confidence": float(self.confidence[k])}
-            for b, ms in self.wall_ms.items():
-                row[f"{b}_ms"] = float(ms[k])
-            row["source_frame"] = int(self.source_frame[k])
-            rows.append(row)
-        return rows
-
     def frames_csv(self) -> str:
         cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
         out = io.StringIO()
