@@ -10,7 +10,7 @@ Prints, per method (grid_lk; grid_lk with the forward-backward check; grid_lk wi
   wall time; OpenCV limited to ``--threads`` threads; the methods run interleaved frame by frame,
   so load changes hit all of them alike; on the synthetic suite and on the real footage;
 - mean corner-transfer error (px) against the exact inter-frame homographies of the synthetic
-  suite (:mod:`mata_eval.synth`), over the frames where every method gives a valid motion, and
+  suite (:mod:`mata_eval.data.synth`), over the frames where every method gives a valid motion, and
   the number of invalid motions;
 - the photometric residual after warping (mean absolute grey difference between frame k and
   frame k-1 warped by the estimate, over the covered pixels) on wakeboard7 and wakeboard10 from
@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mata_eval import synth
+from mata_eval.data import synth
 from mata_eval_plugins.egomotion import homography_covariance as hc
 from mata_eval_plugins.egomotion.features import FeatureLK
 from mata_eval_plugins.egomotion.grid_lk import GridLK

@@ -68,7 +68,7 @@ def constant_sequence(n: int) -> Sequence:
 
 def moving_target_sequence(seed: int, n: int, w: int = 320, h: int = 240) -> Sequence:
     """A textured background under a drifting camera with a bright textured target: used only
-    when ``mata_eval.synth`` is not available."""
+    when ``mata_eval.data.synth`` is not available."""
     rng = np.random.default_rng(seed)
     bg = (rng.random((h + 200, w + 200, 3)) * 255).astype(np.uint8)
     target = (rng.random((30, 40, 3)) * 127 + 128).astype(np.uint8)
@@ -88,7 +88,7 @@ def moving_target_sequence(seed: int, n: int, w: int = 320, h: int = 240) -> Seq
 
 def synthetic_sequences(count: int, n: int) -> tuple[list[Sequence], str]:
     try:
-        from mata_eval import synth
+        from mata_eval.data import synth
 
         seqs = []
         for s in range(count):

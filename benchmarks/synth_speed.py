@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from mata_eval import synth
+from mata_eval.data import synth
 
 
 def io_floor(n_frames: int, width: int, height: int, out: Path) -> tuple[float, float]:

@@ -121,7 +121,7 @@ def make_opencv(name: str):
 
 def synthetic_scores(names: list[str], n: int, n_frames: int) -> dict[str, list[tuple[str, float, float]]]:
     """Per tracker: (sequence, success rate, mean IoU) over frames with a visible target."""
-    from mata_eval.synth import render_sequence, suite_specs
+    from mata_eval.data.synth import render_sequence, suite_specs
 
     scores: dict[str, list[tuple[str, float, float]]] = {name: [] for name in names}
     for spec in suite_specs(n, n_frames=n_frames):

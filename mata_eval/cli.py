@@ -15,7 +15,7 @@ from .errors import ConfigError
 SUBCOMMAND_MODULES = (
     "mata_eval.evaluate",   # eval
     "mata_eval.report",     # report
-    "mata_eval.synth",      # synth
+    "mata_eval.data.synth.render",  # synth
     "mata_eval.occlusion",  # augment
     "mata_eval.timeline",   # timeline
     "mata_eval.profile",    # profile

@@ -458,7 +458,7 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
     000001.jpg), ground truth unchanged, original attribute flags, per-frame occlusion metadata
     (``anno/UAV123/occlusion/``), true homographies when the input has them, and a contact sheet
     per sequence (``contact_sheets/<seq>.png``). Returns the names written."""
-    from .synth import UAV123_ATTRIBUTES, _fmt_box, write_config_seqs
+    from .data.synth.render import UAV123_ATTRIBUTES, _fmt_box, write_config_seqs
 
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:

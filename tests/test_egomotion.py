@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval import synth
+from mata_eval.data import synth
 from mata_eval.errors import ConfigError
 from mata_eval.interfaces import EgoMotion
 from mata_eval.params import build_params

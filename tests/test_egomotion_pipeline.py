@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mata_eval import synth
+from mata_eval.data import synth
 from mata_eval.registry import load_registry
 from mata_eval.scheduler import run_sequence
 from mata_eval.sequence import Sequence

@@ -168,7 +168,8 @@ def test_write_augmented_copy_reads_back_through_the_uav123_loader(tmp_path):
 def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     import argparse
 
-    from mata_eval import occlusion, synth
+    from mata_eval import occlusion
+    from mata_eval.data import synth
 
     synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(1, 8, 96, 64), jobs=1)
     parser = argparse.ArgumentParser()
@@ -193,7 +194,8 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
 def test_every_run_of_an_experiment_sees_the_same_occlusions(tmp_path):
     """Through the experiment file and the runner's loader: two runs of a matrix (different
     methods) get identical occluded frames and metadata; another experiment seed does not."""
-    from mata_eval import runner, synth
+    from mata_eval import runner
+    from mata_eval.data import synth
     from mata_eval.config import load_experiment
 
     synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(2, 30, 96, 64, seed=2), jobs=1)

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval import synth
+from mata_eval.data import synth
 from mata_eval.datasets.annotations import parse_config_seqs, read_attribute_flags, read_boxes
 
 W, H = 160, 120
@@ -180,7 +180,7 @@ def test_write_suite_is_atomic_on_failure(tmp_path, monkeypatch):
             raise RuntimeError("disk full")
         return synth._write_frames(task)
 
-    monkeypatch.setattr(synth, "_write_frames", boom)
+    monkeypatch.setattr(synth.render, "_write_frames", boom)
     root = tmp_path / "suite"
     with pytest.raises(RuntimeError, match="disk full"):
         synth.write_suite(root, specs=synth.suite_specs(2, 4, W, H), jobs=1)

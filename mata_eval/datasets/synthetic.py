@@ -1,4 +1,4 @@
-"""The built-in synthetic UAV suite (:mod:`mata_eval.synth`) as a dataset plugin.
+"""The built-in synthetic UAV suite (:mod:`mata_eval.data.synth`) as a dataset plugin.
 
 The suite is generated on first use into a cache folder keyed by its generation parameters
 (atomically: a crash never leaves a half suite that looks complete), then read through the
@@ -60,14 +60,14 @@ class SyntheticDataset:
     def root(self) -> Path:
         if self.params.root:
             return Path(self.params.root).expanduser()
-        from ..synth import GENERATOR_VERSION
+        from ..data.synth import GENERATOR_VERSION
 
         key = json.dumps({**self.generation, "version": GENERATOR_VERSION}, sort_keys=True)
         return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def ensure(self) -> Path:
         """Generate the suite at :attr:`root` unless a complete one is there; returns the root."""
-        from ..synth import read_suite_info, write_suite
+        from ..data.synth import read_suite_info, write_suite
 
         root = self.root
         info = read_suite_info(root)
@@ -97,7 +97,7 @@ def read_suite(root: str | Path, sequences: list[str] | None = None) -> list[Seq
     UAV123 loader, with the true homographies in ``meta["homographies"]``."""
     import dataclasses
 
-    from ..synth import load_true_homographies, read_suite_info
+    from ..data.synth import load_true_homographies, read_suite_info
     from .uav123 import UAV123
 
     root = Path(root)

@@ -1,4 +1,4 @@
-"""Procedural images for the synthetic UAV generator (:mod:`mata_eval.synth`): the textured
+"""Procedural images for the synthetic UAV generator (:mod:`mata_eval.data.synth`): the textured
 ground plane and the sprites (vehicles, persons, tree canopies) that move or stand on it.
 
 Everything is drawn with OpenCV primitives and numpy noise from a seeded generator, so a seed

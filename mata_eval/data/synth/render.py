@@ -1,6 +1,6 @@
 """Synthetic UAV sequences with exact ego-motion (`mata-eval synth`).
 
-A textured ground plane (:mod:`mata_eval.synth_texture`) is seen by a pinhole camera that
+A textured ground plane (:mod:`mata_eval.data.synth.texture`) is seen by a pinhole camera that
 follows a target the way a UAV operator would: smooth pursuit with lag, yaw, tilt, zoom and roll
 changes, sudden manoeuvres (quick pans, yaw jerks, zoom jumps) and, on request, out-of-view spells
 where the camera looks away. Vehicle- or person-like sprites move on the ground with constant
@@ -33,7 +33,7 @@ from typing import Callable, Iterator, Literal
 import cv2
 import numpy as np
 
-from . import synth_texture as tex
+from . import texture as tex
 
 #: UAV123 attribute flag order (``anno/UAV123/att/<seq>.txt``).
 UAV123_ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")
