@@ -458,7 +458,8 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
     000001.jpg), ground truth unchanged, original attribute flags, per-frame occlusion metadata
     (``anno/UAV123/occlusion/``), true homographies when the input has them, and a contact sheet
     per sequence (``contact_sheets/<seq>.png``). Returns the names written."""
-    from .data.synth.render import UAV123_ATTRIBUTES, _fmt_box, write_config_seqs
+    from .data.synth import UAV123_ATTRIBUTES
+    from .data.synth.writer import format_box, write_config_seqs
 
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -475,7 +476,7 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
             path = folder / f"{k + 1:06d}.jpg"
             if not cv2.imwrite(str(path), aug.image(k), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]):
                 raise OSError(f"cannot write frame {path}")
-        (anno / f"{seq.name}.txt").write_text("\n".join(_fmt_box(b) for b in seq.groundtruth) + "\n")
+        (anno / f"{seq.name}.txt").write_text("\n".join(format_box(b) for b in seq.groundtruth) + "\n")
         (anno / "att" / f"{seq.name}.txt").write_text(
             ",".join("1" if a in seq.attributes else "0" for a in UAV123_ATTRIBUTES) + "\n")
         write_occlusion_metadata(anno / "occlusion", aug)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from mata_eval.data import synth
+from mata_eval.data.synth import motion, writer
 from mata_eval.datasets.annotations import parse_config_seqs, read_attribute_flags, read_boxes
 
 W, H = 160, 120
@@ -178,9 +179,10 @@ def test_write_suite_is_atomic_on_failure(tmp_path, monkeypatch):
         calls.append(task)
         if len(calls) == 2:
             raise RuntimeError("disk full")
-        return synth._write_frames(task)
+        return real(task)
 
-    monkeypatch.setattr(synth.render, "_write_frames", boom)
+    real = writer._write_frames
+    monkeypatch.setattr(writer, "_write_frames", boom)
     root = tmp_path / "suite"
     with pytest.raises(RuntimeError, match="disk full"):
         synth.write_suite(root, specs=synth.suite_specs(2, 4, W, H), jobs=1)
@@ -228,11 +230,9 @@ def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkey
 
 
 def test_cli_synth(tmp_path, capsys):
-    import argparse
+    from mata_eval.cli import build_parser
 
-    parser = argparse.ArgumentParser()
-    synth.add_cli(parser.add_subparsers())
-    args = parser.parse_args(["synth", str(tmp_path / "out"), "--n-sequences", "1", "--n-frames", "3",
+    args = build_parser().parse_args(["synth", str(tmp_path / "out"), "--n-sequences", "1", "--n-frames", "3",
                               "--width", "64", "--height", "48", "--jobs", "1"])
     assert args.func(args) == 0
     assert (tmp_path / "out" / "data_seq" / "UAV123" / "syn001_cruise" / "000003.jpg").is_file()
@@ -246,8 +246,8 @@ def test_camera_model_pure_translation_against_phase_correlation():
     measures the same shift."""
     ground = synth.ground_texture(3, 512)
     Z, z = 300.0, 1.25
-    G0 = synth._camera(np.array([256.0, 256.0]), Z, 0.0, 0.0, 0.0, z * Z, 128, 96)
-    G1 = synth._camera(np.array([256.0 + 4.0, 256.0 - 2.4]), Z, 0.0, 0.0, 0.0, z * Z, 128, 96)
+    G0 = motion.camera(np.array([256.0, 256.0]), Z, 0.0, 0.0, 0.0, z * Z, 128, 96)
+    G1 = motion.camera(np.array([256.0 + 4.0, 256.0 - 2.4]), Z, 0.0, 0.0, 0.0, z * Z, 128, 96)
     Hk = G1 @ np.linalg.inv(G0)
     np.testing.assert_allclose(Hk / Hk[2, 2], [[1, 0, -5.0], [0, 1, 3.0], [0, 0, 1]], atol=1e-9)
     f0 = cv2.warpPerspective(ground, G0, (128, 96)).astype(np.float32).mean(axis=2)
