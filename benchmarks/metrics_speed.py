@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from mata_eval import metrics
+from mata_eval.score import metrics
 
 
 def synthetic_results(n_seq: int, n_frames: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -13,7 +13,7 @@ from .errors import ConfigError
 
 # Modules that contribute a subcommand through ``add_cli(subparsers)``.
 SUBCOMMAND_MODULES = (
-    "mata_eval.evaluate",   # eval
+    "mata_eval.score.evaluate",  # eval
     "mata_eval.report",     # report
     "mata_eval.occlusion",  # augment
     "mata_eval.timeline",   # timeline

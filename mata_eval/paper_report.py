@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from .evaluate import RunScores
+from .score.evaluate import RunScores
 
 PAPER_TABLES = ("protocols", "challenges", "ablation", "embedded")
 PAPER_FORMATS = ("markdown", "latex")

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .evaluate import SCORES, RunScores, load_scores
-from .metrics import NORM_GRID, PIXEL_GRID, Summary
+from .score.evaluate import SCORES, RunScores, load_scores
+from .score.metrics import NORM_GRID, PIXEL_GRID, Summary
 
 FORMATS = ("terminal", "markdown", "csv", "latex")
 TABLES = ("overall", "challenges")
@@ -323,7 +323,7 @@ def scores_for(run_dir: Path) -> RunScores:
         raise ScoresUnavailable(f"{d}: no {SCORES}, and the experiment file {exp_file!r} named in its "
                                 f"manifest cannot be read; {hint}")
     from .config import load_experiment
-    from .evaluate import evaluate_run
+    from .score.evaluate import evaluate_run
     from .runner import load_sequences
 
     exp = load_experiment(exp_file)

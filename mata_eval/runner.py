@@ -215,7 +215,7 @@ def run_experiment(
 
 def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[Any]:
     """Score every run folder (writes ``scores.json`` in each) and return the run scores."""
-    from .evaluate import evaluate_run
+    from .score.evaluate import evaluate_run
 
     scores = []
     for spec in exp.runs:

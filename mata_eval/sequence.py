@@ -20,7 +20,7 @@ class Sequence:
     """One sequence of a dataset.
 
     ``groundtruth``: (N, 4) float ``x, y, w, h``; rows that are not annotated or where the target
-    is absent are NaN (metrics skip them, see :mod:`mata_eval.metrics`).
+    is absent are NaN (metrics skip them, see :mod:`mata_eval.score.metrics`).
     ``annotated``: optional (N,) bool mask for sparse ground truth (VTUAV: every 10th frame);
     ``None`` means every frame is annotated.
     ``frame_paths``: one image path per frame (may be empty when only annotations are loaded).

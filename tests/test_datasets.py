@@ -205,7 +205,7 @@ def test_scoring_published_dtb70_results_needs_annotations_only(shared_data, tmp
     DTB70 numbers (success AUC 0.594, precision 0.790), and no image is read."""
     import zipfile
 
-    from mata_eval.evaluate import evaluate_results
+    from mata_eval.score.evaluate import evaluate_results
 
     with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
         z.extractall(tmp_path, members=[n for n in z.namelist() if "/SiamAPN++/" in n])

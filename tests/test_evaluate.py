@@ -10,7 +10,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from mata_eval import cli, evaluate, results
+from mata_eval import cli, results
+from mata_eval.score import evaluate
 from mata_eval.sequence import Sequence
 
 N = 12

@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval import metrics as M
+from mata_eval.score import metrics as M
 
 
 def boxes(*rows):

@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from mata_eval import metrics as M
+from mata_eval.score import metrics as M
 
 IOU_GRID = [i * 0.05 for i in range(21)]
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from mata_eval import evaluate
+from mata_eval.score import evaluate
 from mata_eval.sequence import Sequence
 
 

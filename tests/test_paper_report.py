@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from mata_eval import cli, results
-from mata_eval.evaluate import evaluate_run
+from mata_eval.score.evaluate import evaluate_run
 from mata_eval.paper_report import (PlacementError, build_table, load_runs, render_paper_table, to_latex)
 from mata_eval.sequence import Sequence
 

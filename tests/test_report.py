@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval import cli, evaluate, metrics, report
-from mata_eval.metrics import BlockFrequency
+from mata_eval import cli, report
+from mata_eval.score import evaluate, metrics
+from mata_eval.score.metrics import BlockFrequency
 from mata_eval.sequence import Sequence
 
 
