@@ -293,7 +293,7 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
             raise ConfigError(where(("metrics", k)), ("metrics", k),
                               f"unknown key; expected one of: {', '.join(sorted(METRICS_KEYS))}")
     profile = metrics.get("profile", "default")
-    from .score.metrics import PROFILES
+    from .core.metric_profiles import PROFILES
 
     if profile not in PROFILES:
         raise ConfigError(where(("metrics", "profile")), ("metrics", "profile"),

@@ -1,7 +1,5 @@
-"""Tracking metrics (paper section 3.3; DESIGN.md "Metrics"): SR, MSR, PR, P@20 and NT2F per
-sequence, their means per dataset and per attribute / challenge subset, block frequencies, and
-named compatibility profiles that reproduce what pysot, pysot-toolkit, got10k, pytracking and
-mmtracking report for the same results.
+"""Measures of one sequence (paper section 3.3; DESIGN.md "Metrics"): per-frame IoU and centre
+errors, and the sequence's SR, MSR, PR, P@20 and NT2F under a metric profile.
 
 Definitions (``default`` profile; ``docs/metrics.md`` has the full table):
 
@@ -21,139 +19,13 @@ Everything is vectorised numpy: one sequence costs a handful of array operations
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
-from typing import Iterable, Literal, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Literal, Mapping, Sequence
 
 import numpy as np
 
-# --- threshold grids -------------------------------------------------------------------------
-
-#: Success thresholds of pysot / pysot-toolkit / mmtracking / ours: ``np.arange(0, 1.05, 0.05)``
-#: (its float noise included: t[6] = 0.30000000000000004; t[10] == 0.5 exactly).
-PYSOT_IOU_GRID = tuple(float(t) for t in np.arange(0, 1.05, 0.05))
-#: got10k builds its grid with ``np.linspace(0, 1, 21)``: the same 21 doubles.
-GOT10K_IOU_GRID = tuple(float(t) for t in np.linspace(0, 1, 21))
-#: pytracking builds it with ``torch.arange(0, 1.05, 0.05, dtype=float64)``, which differs from
-#: numpy's by one ulp at 0.65 and 0.75 (written out here so the core does not need torch).
-PYTRACKING_IOU_GRID = tuple(
-    float(np.nextafter(t, 1.0)) if i in (13, 15) else t for i, t in enumerate(PYSOT_IOU_GRID))
-#: Precision thresholds in pixels (``<=``), value reported at 20 px (index 20).
-PIXEL_GRID = tuple(float(t) for t in np.arange(0, 51))
-#: Normalised-precision thresholds (``<=``), value reported at 0.2 (index 20).
-NORM_GRID = tuple(float(t) for t in np.arange(0, 51) / 100.0)
-SR_INDEX = 10  # IoU > 0.5
-P20_INDEX = 20  # 20 px, or 0.2 of the target size
-
-Validity = Literal["finite", "wh", "xywh", "center"]
-InvalidAction = Literal["exclude", "fail", "hit"]
-
-
-@dataclass(frozen=True)
-class Profile:
-    """The policies that make toolkits disagree on the same results (EVAL_TOOLKITS.md).
-
-    Validity of a ground-truth row (``*_valid``): ``finite`` = no NaN; ``wh`` = finite with
-    w > 0 and h > 0; ``xywh`` = all four values > 0 (a box touching the left/top border is
-    invalid); ``center`` = both centre coordinates > 0. What an invalid scored frame does
-    (``invalid_*``): ``exclude`` = left out of numerator and denominator; ``fail`` = kept in the
-    denominator and never a success; ``hit`` = kept and counted as a success at every threshold
-    (what the distance = -1 trick of pysot / pytracking-uav / mmtracking does).
-    """
-
-    name: str
-    description: str
-    iou_thresholds: tuple[float, ...] = PYSOT_IOU_GRID
-    success_valid: Validity = "wh"
-    invalid_success: InvalidAction = "exclude"
-    precision_valid: Validity = "wh"
-    invalid_precision: InvalidAction = "exclude"
-    norm_precision_valid: Validity = "wh"
-    invalid_norm_precision: InvalidAction = "exclude"
-    #: ``continuous``: :func:`iou`, clipped to [0, 1]; ``pixel_inclusive``: pytracking's
-    #: ``br = x + w - 1``, ``sz = br - tl + 1`` without clipping, where float rounding can put
-    #: the IoU of identical boxes a hair above 1 (then it passes the last threshold).
-    iou_formula: Literal["continuous", "pixel_inclusive"] = "continuous"
-    #: ``continuous``: centre ``x + w/2``; ``legacy``: ``x + (w - 1)/2`` (MATLAB heritage).
-    #: The two only differ in the ``center`` validity mask, distances are the same.
-    center: Literal["continuous", "legacy"] = "continuous"
-    #: the normalised error divides by ``max(floor, w_gt)`` per axis (got10k: 1; others: none).
-    norm_size_floor: float = 0.0
-    #: ``ground_truth``: the prediction of frame 0 is replaced by its ground truth (got10k,
-    #: pytracking); ``as_is``: scored as it is in the file.
-    frame0: Literal["as_is", "ground_truth"] = "as_is"
-    #: ``previous``: a prediction with zero width or height is replaced by the previous one
-    #: (pytracking, only where the ground truth is not NaN).
-    zero_size_prediction: Literal["as_is", "previous"] = "as_is"
-    #: predictions longer / shorter than the ground truth: ``error``; ``truncate`` to the shorter
-    #: of the two (got10k); ``pad`` with zero boxes or truncate (pytracking).
-    length_mismatch: Literal["error", "truncate", "pad"] = "error"
-
-
-PROFILES: dict[str, Profile] = {
-    p.name: p
-    for p in (
-        Profile(
-            "default",
-            "mata-eval: frames with NaN or zero-size ground truth are skipped by every metric "
-            "(and counted); frame 0 scored as predicted",
-        ),
-        Profile(
-            "pysot",
-            "STVIR/pysot toolkit: invalid GT (w or h <= 0, NaN) is a failure for success and a hit "
-            "for (normalised) precision; denominator = all frames",
-            success_valid="wh", invalid_success="fail",
-            precision_valid="center", invalid_precision="hit",
-            norm_precision_valid="center", invalid_norm_precision="hit", center="legacy",
-        ),
-        Profile(
-            "pysot-toolkit",
-            "StrangerZhang/pysot-toolkit: as pysot, but success needs all of x, y, w, h > 0 "
-            "(GT touching the left/top border is a failure)",
-            success_valid="xywh", invalid_success="fail",
-            precision_valid="center", invalid_precision="hit",
-            norm_precision_valid="center", invalid_norm_precision="hit", center="legacy",
-        ),
-        Profile(
-            "got10k",
-            "got10k ExperimentUAV123: NaN GT rows removed; frame 0 replaced by GT; normalised error "
-            "divided by max(1, w), max(1, h)",
-            iou_thresholds=GOT10K_IOU_GRID,
-            success_valid="finite", invalid_success="exclude",
-            precision_valid="finite", invalid_precision="exclude",
-            norm_precision_valid="finite", invalid_norm_precision="exclude", center="legacy",
-            norm_size_floor=1.0, frame0="ground_truth", length_mismatch="truncate",
-        ),
-        Profile(
-            "pytracking",
-            "pytracking (dataset 'uav'): GT valid if x, y, w, h > 0; invalid = failure for success, "
-            "hit for (normalised) precision; frame 0 replaced by GT; zero-size predictions held",
-            iou_thresholds=PYTRACKING_IOU_GRID,
-            success_valid="xywh", invalid_success="fail",
-            precision_valid="xywh", invalid_precision="hit",
-            norm_precision_valid="xywh", invalid_norm_precision="hit", center="legacy",
-            frame0="ground_truth", zero_size_prediction="previous", length_mismatch="pad",
-            iou_formula="pixel_inclusive",
-        ),
-        Profile(
-            "mmtracking",
-            "mmtracking eval_sot_ope: success needs w, h > 0 (else failure); precision needs centre "
-            "x + w/2, y + h/2 > 0 (else hit); denominator = all frames",
-            success_valid="wh", invalid_success="fail",
-            precision_valid="center", invalid_precision="hit",
-            norm_precision_valid="center", invalid_norm_precision="hit", center="continuous",
-        ),
-    )
-}
-
-
-def get_profile(profile: str | Profile) -> Profile:
-    """A profile by name (KeyError lists the names) or the profile itself."""
-    if isinstance(profile, Profile):
-        return profile
-    try:
-        return PROFILES[profile]
-    except KeyError:
-        raise KeyError(f"unknown metric profile {profile!r}; available: {', '.join(PROFILES)}") from None
+from ...core.metric_profiles import (NORM_GRID, P20_INDEX, PIXEL_GRID, SR_INDEX, InvalidAction, Profile,
+                                     Validity, get_profile)
 
 
 # --- per-frame measures ----------------------------------------------------------------------
@@ -293,9 +165,9 @@ class SequenceScores:
     def to_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         for k in ("success_curve", "precision_curve", "norm_precision_curve"):
-            d[k] = [_json_float(v) for v in d[k]]
+            d[k] = [json_float(v) for v in d[k]]
         for k in ("sr", "msr", "pr", "precision20", "nt2f"):
-            d[k] = _json_float(d[k])
+            d[k] = json_float(d[k])
         return d
 
     @classmethod
@@ -308,7 +180,7 @@ class SequenceScores:
         return cls(**kw)
 
 
-def _json_float(v: float) -> float | None:
+def json_float(v: float) -> float | None:
     v = float(v)
     return None if not np.isfinite(v) else v
 
@@ -409,201 +281,3 @@ def score_sequence(
         failure_frame=failure_frame,
     )
 
-
-# --- datasets and subsets --------------------------------------------------------------------
-
-METRIC_NAMES = ("sr", "msr", "pr", "precision20", "nt2f")
-
-#: DESIGN.md challenge groups, each "any of" these sequence attributes (compared upper-case).
-#: UAV123: FOC / POC (full / partial occlusion), SOB (similar object), FM (fast motion), OV;
-#: AOC marks a sequence with augmented occlusion events (set by the occlusion augmentation).
-#: The same concepts in DTB70 (OCC, SOA) and UAVDT (LO, large occlusion) are included; they
-#: change nothing on UAV123, whose attribute names differ.
-DEFAULT_GROUPS: dict[str, tuple[str, ...]] = {
-    "occlusion": ("FOC", "POC", "AOC", "OCC", "LO"),
-    "distractor": ("SOB", "SOA"),
-    "high dynamic": ("FM",),
-    "out of view": ("OV",),
-}
-
-
-@dataclass(frozen=True, eq=False)
-class Summary:
-    """Means over the sequences of a set (every toolkit averages per sequence first). Sequences
-    where a metric is NaN (nothing could be scored) are left out of that metric's mean."""
-
-    n_sequences: int
-    sr: float
-    msr: float
-    pr: float
-    precision20: float
-    nt2f: float
-    success_curve: np.ndarray
-    precision_curve: np.ndarray
-    norm_precision_curve: np.ndarray
-    n_frames: int
-    n_scored: int
-    n_excluded: int
-    n_invalid_gt: int
-
-    def to_dict(self) -> dict:
-        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        for k in ("success_curve", "precision_curve", "norm_precision_curve"):
-            d[k] = [_json_float(v) for v in d[k]]
-        for k in METRIC_NAMES:
-            d[k] = _json_float(d[k])
-        return d
-
-    @classmethod
-    def from_dict(cls, d: Mapping) -> "Summary":
-        kw = dict(d)
-        for k in ("success_curve", "precision_curve", "norm_precision_curve"):
-            kw[k] = np.array([np.nan if v is None else v for v in kw[k]], dtype=float)
-        for k in METRIC_NAMES:
-            kw[k] = float("nan") if kw[k] is None else float(kw[k])
-        return cls(**kw)
-
-
-def _nanmean_rows(rows: list[np.ndarray], width: int) -> np.ndarray:
-    if not rows:
-        return np.full(width, np.nan)
-    a = np.vstack(rows)
-    ok = np.isfinite(a)
-    counts = ok.sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(counts > 0, np.where(ok, a, 0.0).sum(axis=0) / counts, np.nan)
-
-
-def summarize(scores: Iterable[SequenceScores]) -> Summary:
-    """Per-dataset means of a set of sequences."""
-    scores = list(scores)
-    scorable = [s for s in scores if np.isfinite(s.msr) or np.isfinite(s.nt2f)]
-
-    def mean(name: str) -> float:
-        vals = np.array([getattr(s, name) for s in scores], dtype=float)
-        vals = vals[np.isfinite(vals)]
-        return float(vals.mean()) if vals.size else float("nan")
-
-    return Summary(
-        n_sequences=len(scorable),
-        **{m: mean(m) for m in METRIC_NAMES},
-        success_curve=_nanmean_rows([s.success_curve for s in scores], len(PYSOT_IOU_GRID)),
-        precision_curve=_nanmean_rows([s.precision_curve for s in scores], len(PIXEL_GRID)),
-        norm_precision_curve=_nanmean_rows([s.norm_precision_curve for s in scores], len(NORM_GRID)),
-        n_frames=sum(s.n_frames for s in scores),
-        n_scored=sum(s.n_scored for s in scores),
-        n_excluded=sum(s.n_excluded for s in scores),
-        n_invalid_gt=sum(s.n_invalid_gt for s in scores),
-    )
-
-
-@dataclass(frozen=True, eq=False)
-class Aggregate:
-    """Dataset-level means, per attribute (every attribute present) and per challenge group
-    (every configured group, possibly empty: ``n_sequences == 0`` and NaN values)."""
-
-    overall: Summary
-    attributes: dict[str, Summary]
-    groups: dict[str, Summary]
-    group_definitions: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    #: means over the frames an augmented occluder covers (sequences with occluded frames only)
-    occluded_frames: Summary | None = None
-
-    def to_dict(self) -> dict:
-        return {
-            "overall": self.overall.to_dict(),
-            "attributes": {k: v.to_dict() for k, v in self.attributes.items()},
-            "groups": {k: v.to_dict() for k, v in self.groups.items()},
-            "group_definitions": {k: list(v) for k, v in self.group_definitions.items()},
-            "occluded_frames": None if self.occluded_frames is None else self.occluded_frames.to_dict(),
-        }
-
-    @classmethod
-    def from_dict(cls, d: Mapping) -> "Aggregate":
-        return cls(
-            overall=Summary.from_dict(d["overall"]),
-            attributes={k: Summary.from_dict(v) for k, v in d["attributes"].items()},
-            groups={k: Summary.from_dict(v) for k, v in d["groups"].items()},
-            group_definitions={k: tuple(v) for k, v in d.get("group_definitions", {}).items()},
-            occluded_frames=Summary.from_dict(d["occluded_frames"]) if d.get("occluded_frames") else None,
-        )
-
-
-def aggregate(
-    items: Iterable[tuple[SequenceScores, Iterable[str]]],
-    groups: Mapping[str, Iterable[str]] | None = None,
-) -> Aggregate:
-    """Means over sequences, per attribute and per challenge group. ``items``: (scores,
-    attributes of the sequence). ``groups``: name -> attributes, a sequence belongs to the group
-    if it has any of them (case-insensitive); default :data:`DEFAULT_GROUPS`."""
-    items = [(s, frozenset(attrs)) for s, attrs in items]
-    defs = {k: tuple(v) for k, v in (DEFAULT_GROUPS if groups is None else groups).items()}
-    present = sorted(set().union(*(a for _, a in items))) if items else []
-
-    def in_group(attrs: frozenset[str], members: Iterable[str]) -> bool:
-        return bool({a.upper() for a in attrs} & {m.upper() for m in members})
-
-    return Aggregate(
-        overall=summarize(s for s, _ in items),
-        attributes={a: summarize(s for s, attrs in items if a in attrs) for a in present},
-        groups={name: summarize(s for s, attrs in items if in_group(attrs, members))
-                for name, members in defs.items()},
-        group_definitions=defs,
-    )
-
-
-# --- block frequencies -----------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class BlockFrequency:
-    """How often a block ran. ``scheduled_hz``: starts per second of camera time (what the
-    protocol made it do, paper "Freq."); ``wall_hz``: 1 / mean wall-clock time of a call (how
-    fast it could go on this machine); NaN where unknown."""
-
-    starts: int
-    camera_seconds: float
-    total_ms: float
-
-    @property
-    def scheduled_hz(self) -> float:
-        return self.starts / self.camera_seconds if self.camera_seconds > 0 else float("nan")
-
-    @property
-    def wall_hz(self) -> float:
-        return 1000.0 * self.starts / self.total_ms if self.total_ms > 0 else float("nan")
-
-    def __add__(self, other: "BlockFrequency") -> "BlockFrequency":
-        return BlockFrequency(self.starts + other.starts, self.camera_seconds + other.camera_seconds,
-                              self.total_ms + other.total_ms)
-
-    def to_dict(self) -> dict:
-        return {"starts": self.starts, "camera_seconds": self.camera_seconds, "total_ms": self.total_ms,
-                "scheduled_hz": _json_float(self.scheduled_hz), "wall_hz": _json_float(self.wall_hz)}
-
-    @classmethod
-    def from_dict(cls, d: Mapping) -> "BlockFrequency":
-        return cls(int(d["starts"]), float(d["camera_seconds"]), float(d["total_ms"]))
-
-
-def block_frequencies(wall_ms: Mapping[str, np.ndarray], n_frames: int, fps: float) -> dict[str, BlockFrequency]:
-    """Frequencies of each block of one sequence from its per-frame wall times in ms (NaN where
-    the block did not start at that frame; architecture.md ``<seq>.frames.csv``). The camera
-    time of a sequence of ``n_frames`` frames is ``n_frames / fps``."""
-    if fps <= 0:
-        raise ValueError(f"fps must be > 0, got {fps}")
-    out = {}
-    for block, ms in wall_ms.items():
-        ms = np.asarray(ms, dtype=float)
-        started = np.isfinite(ms)
-        out[block] = BlockFrequency(int(started.sum()), n_frames / fps, float(ms[started].sum()))
-    return out
-
-
-def combine_frequencies(per_sequence: Iterable[Mapping[str, BlockFrequency]]) -> dict[str, BlockFrequency]:
-    """Dataset-level frequencies: starts and times summed over sequences (time-weighted)."""
-    out: dict[str, BlockFrequency] = {}
-    for seq in per_sequence:
-        for block, f in seq.items():
-            out[block] = out[block] + f if block in out else f
-    return out
