@@ -96,7 +96,7 @@ def tensorrt_usable() -> bool:
 
 def configurations(model: str, tmp: Path, threads: int, variant: str) -> tuple[list[tuple[str, object]], dict]:
     """(label, tracker) per backend, baseline first; and the export parity (graph -> max error)."""
-    from mata_eval import export as E
+    from mata_eval.deploy import export as E
 
     parity: dict[str, float] = {}
     rows: list[tuple[str, object]] = []
@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(args.threads)
     frames, init, source = load_frames(args.frames + 1)
-    from mata_eval.profile import cpu_model, gpu_description
+    from mata_eval.deploy.profile import cpu_model, gpu_description
 
     load = ", ".join(f"{v:.1f}" for v in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
     print(f"machine: {cpu_model()}, {os.cpu_count()} cores, threads {args.threads}; GPU: {gpu_description() or 'none'}; "

@@ -15,8 +15,8 @@ import time
 
 import numpy as np
 
-from mata_eval.scheduler import run_sequence
-from mata_eval.sequence import Sequence
+from mata_eval.run.scheduler import run_sequence
+from mata_eval.core.sequence import Sequence
 from mata_eval.types import Estimate, Motion, TrackerOutput
 
 
@@ -103,7 +103,7 @@ def synthetic_sequences(count: int, n: int) -> tuple[list[Sequence], str]:
 def make_tracker():
     try:
         from mata_eval.params import build_params
-        from mata_eval.registry import load_registry
+        from mata_eval.core.registry import load_registry
 
         entry = load_registry().get("tracker", "kcf")
         return (lambda: entry.cls(build_params(entry.cls.Params, {}))), "kcf"

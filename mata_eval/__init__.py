@@ -6,3 +6,10 @@ datasets, results, reports and CLI; it imports no plugin. Built-in plugins live 
 """
 
 __version__ = "0.1.0"
+
+# Transitional while the move commit lands: the public plugin API modules now live in core/.
+import sys as _sys  # noqa: E402
+
+from .core import hooks as _hooks, params as _params, types as _types  # noqa: E402
+
+_sys.modules.update({"mata_eval.hooks": _hooks, "mata_eval.params": _params, "mata_eval.types": _types})

@@ -9,23 +9,23 @@ import sys
 from pathlib import Path
 
 from . import __version__
-from .errors import ConfigError
+from .core.errors import ConfigError
 
 # Modules that contribute a subcommand through ``add_cli(subparsers)``.
 SUBCOMMAND_MODULES = (
     "mata_eval.score.evaluate",  # eval
-    "mata_eval.report",     # report
-    "mata_eval.occlusion",  # augment
-    "mata_eval.timeline",   # timeline
-    "mata_eval.profile",    # profile
-    "mata_eval.export",     # export
+    "mata_eval.report.tables",  # report
+    "mata_eval.data.occlusion",  # augment
+    "mata_eval.report.timeline",  # timeline
+    "mata_eval.deploy.profile",  # profile
+    "mata_eval.deploy.export",  # export
 )
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from .hooks import KINDS
-    from .params import describe
-    from .registry import load_registry
+    from .core.hooks import KINDS
+    from .core.params import describe
+    from .core.registry import load_registry
 
     reg = load_registry()
     for kind in KINDS:
@@ -47,8 +47,8 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from .config import load_experiment
-    from .runner import ResultsConflict, evaluate_experiment, run_experiment
+    from .run.config import load_experiment
+    from .run.runner import ResultsConflict, evaluate_experiment, run_experiment
 
     exp = load_experiment(args.experiment)
     if args.output:
@@ -62,7 +62,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 2
     if args.no_report:
         return 0
-    from .report import plot_curves, render_table
+    from .report.tables import plot_curves, render_table
 
     scores = evaluate_experiment(exp, only=args.runs)
     print(render_table(scores, "terminal"))
@@ -83,7 +83,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from .config import load_experiment
+    from .run.config import load_experiment
 
     exp = load_experiment(args.experiment)
     print(f"{exp.path}: experiment {exp.name!r}, {len(exp.runs)} run(s), output {exp.output}")

@@ -5,10 +5,10 @@ from dataclasses import dataclass
 
 import pytest
 
-from mata_eval.config import load_experiment
-from mata_eval.errors import ConfigError
+from mata_eval.run.config import load_experiment
+from mata_eval.core.errors import ConfigError
 from mata_eval.params import param
-from mata_eval.registry import PluginEntry, Registry
+from mata_eval.core.registry import PluginEntry, Registry
 
 
 def _plugin(kind, name, **fields):

@@ -15,13 +15,13 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval.datasets.annotations import DatasetError
-from mata_eval.datasets.dtb70 import DTB70
-from mata_eval.datasets.folder import FolderDataset
-from mata_eval.datasets.uav123 import ATTRIBUTES, UAV20L, UAV123, UAV123_10fps
-from mata_eval.datasets.uavdt import UAVDT
+from mata_eval.data.datasets.annotations import DatasetError
+from mata_eval.data.datasets.dtb70 import DTB70
+from mata_eval.data.datasets.folder import FolderDataset
+from mata_eval.data.datasets.uav123 import ATTRIBUTES, UAV20L, UAV123, UAV123_10fps
+from mata_eval.data.datasets.uavdt import UAVDT
 from mata_eval.params import build_params
-from mata_eval.sequence import FrameReadError
+from mata_eval.core.sequence import FrameReadError
 
 
 def make(cls, **values):

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from mata_eval.data import synth
-from mata_eval.errors import ConfigError
-from mata_eval.interfaces import EgoMotion
+from mata_eval.core.errors import ConfigError
+from mata_eval.core.interfaces import EgoMotion
 from mata_eval.params import build_params
-from mata_eval.registry import load_registry
+from mata_eval.core.registry import load_registry
 from mata_eval_plugins.egomotion import homography_covariance as hc
 from mata_eval_plugins.egomotion.features import FeatureLK
 from mata_eval_plugins.egomotion.grid_lk import GridLK

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from mata_eval.data import synth
-from mata_eval.registry import load_registry
-from mata_eval.scheduler import run_sequence
-from mata_eval.sequence import Sequence
+from mata_eval.core.registry import load_registry
+from mata_eval.run.scheduler import run_sequence
+from mata_eval.core.sequence import Sequence
 from mata_eval.types import Box, TrackerOutput
 from mata_eval_plugins.egomotion import homography_covariance as hc
 from mata_eval_plugins.egomotion.grid_lk import GridLK

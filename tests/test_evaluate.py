@@ -10,9 +10,10 @@ import zipfile
 import numpy as np
 import pytest
 
-from mata_eval import cli, results
+from mata_eval import cli
+from mata_eval.run import results
 from mata_eval.score import evaluate
-from mata_eval.sequence import Sequence
+from mata_eval.core.sequence import Sequence
 
 N = 12
 
@@ -200,7 +201,7 @@ def test_eval_cli_reports_unknown_dataset(tmp_path, capsys):
 
 def test_eval_cli_on_real_dtb70_results(shared_data, tmp_path, capsys):
     """End to end with the dtb70 dataset plugin, when it is installed."""
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
 
     if "dtb70" not in load_registry().names("dataset"):
         pytest.skip("dataset plugin 'dtb70' not available yet")

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from mata_eval.config import load_experiment
-from mata_eval.paper_report import ablation_marks, embedded_role, is_mata, protocol_label
-from mata_eval.timing_profile import read_profile
+from mata_eval.run.config import load_experiment
+from mata_eval.report.paper import ablation_marks, embedded_role, is_mata, protocol_label
+from mata_eval.run.timing_profile import read_profile
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = sorted((ROOT / "experiments").glob("*.yaml"))

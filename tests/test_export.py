@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx", reason="torch.onnx.export needs the onnx package (pip install onnx)")
 
-from mata_eval import export as E  # noqa: E402
+from mata_eval.deploy import export as E  # noqa: E402
 from mata_eval_plugins.trackers import vit  # noqa: E402
 
 TINY_MF = vit.MixFormerV2Config(template_size=32, search_size=64, depth=2, embed_dim=64, num_heads=4, feat_sz=16)

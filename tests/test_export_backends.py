@@ -13,7 +13,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx", reason="torch.onnx.export needs the onnx package (pip install onnx)")
 
-from mata_eval import export as E  # noqa: E402
+from mata_eval.deploy import export as E  # noqa: E402
 from mata_eval.types import Box  # noqa: E402
 from mata_eval_plugins.trackers import vit  # noqa: E402
 from mata_eval_plugins.trackers.mixformerv2 import MixFormerV2  # noqa: E402

@@ -4,7 +4,7 @@ must stay cheap and keep the crop sizes their networks expect (found by the pape
 import numpy as np
 import pytest
 
-from mata_eval.registry import load_registry
+from mata_eval.core.registry import load_registry
 from mata_eval.types import Box
 from mata_eval_plugins.trackers.crop import crop_square
 

@@ -8,7 +8,7 @@ import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 
 from mata_eval.params import build_params
-from mata_eval.errors import ConfigError
+from mata_eval.core.errors import ConfigError
 from mata_eval.types import Box, Motion, Stamped, TrackerOutput
 from mata_eval_plugins.estimators import ekf_math as em
 from mata_eval_plugins.estimators.homography_ekf import HomographyEKF, confidence_gate
@@ -327,14 +327,14 @@ def test_ablation_experiment_expands_to_the_seven_configurations():
     import importlib.util
     from pathlib import Path
 
-    from mata_eval.config import load_experiment
-    from mata_eval.registry import load_registry
+    from mata_eval.run.config import load_experiment
+    from mata_eval.core.registry import load_registry
 
     reg = load_registry()
     needed = {"dataset": "synthetic", "tracker": "kcf", "egomotion": "grid_lk", "protocol": "eop"}
     missing = [f"{k} {n}" for k, n in needed.items() if n not in reg.names(k)]
-    if importlib.util.find_spec("mata_eval.occlusion") is None:
-        missing.append("mata_eval.occlusion")
+    if importlib.util.find_spec("mata_eval.data.occlusion") is None:
+        missing.append("mata_eval.data.occlusion")
     if missing:
         pytest.skip(f"plugins not installed yet: {', '.join(missing)}")
     exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments" / "ablation.yaml")

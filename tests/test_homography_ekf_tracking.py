@@ -168,9 +168,9 @@ class _OracleEgomotion:
 
 
 def _run_eop(estimator, camera, n=120, seed=0):
-    from mata_eval.registry import load_registry
-    from mata_eval.scheduler import run_sequence
-    from mata_eval.sequence import Sequence
+    from mata_eval.core.registry import load_registry
+    from mata_eval.run.scheduler import run_sequence
+    from mata_eval.core.sequence import Sequence
 
     eop = load_registry().get("protocol", "eop").cls
     gt = np.array([truth_box(camera, k).as_array() for k in range(n)])

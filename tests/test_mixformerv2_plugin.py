@@ -26,7 +26,7 @@ def test_modules_import_without_torch():
 
 
 def test_registry_sees_both_plugins():
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
 
     reg = load_registry()
     assert {"mixformerv2", "ostrack"} <= set(reg.plugins["tracker"])

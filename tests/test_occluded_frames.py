@@ -3,7 +3,7 @@
 import numpy as np
 
 from mata_eval.score import evaluate
-from mata_eval.sequence import Sequence
+from mata_eval.core.sequence import Sequence
 
 
 def test_scores_on_the_covered_frames_only():

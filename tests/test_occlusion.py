@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval.errors import ConfigError
-from mata_eval.occlusion import (ATTRIBUTE, SHAPES, OcclusionParams, augment_sequence, load_occlusion,
+from mata_eval.core.errors import ConfigError
+from mata_eval.data.occlusion import (ATTRIBUTE, SHAPES, OcclusionParams, augment_sequence, load_occlusion,
                                  occlusion_seed, plan_occlusions, write_augmented)
 from mata_eval.params import build_params
-from mata_eval.sequence import Sequence
+from mata_eval.core.sequence import Sequence
 
 W, H, N = 160, 120, 40
 GREY = 128
@@ -146,7 +146,7 @@ def test_params_from_an_experiment_block_and_errors():
 
 
 def test_write_augmented_copy_reads_back_through_the_uav123_loader(tmp_path):
-    from mata_eval.datasets.uav123 import UAV123
+    from mata_eval.data.datasets.uav123 import UAV123
 
     seqs = [grey_sequence("a"), grey_sequence("b", n=30)]
     names = write_augmented(seqs, tmp_path / "aug", PARAMS, 9, quality=100)
@@ -168,7 +168,7 @@ def test_write_augmented_copy_reads_back_through_the_uav123_loader(tmp_path):
 def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     import argparse
 
-    from mata_eval import occlusion
+    from mata_eval.data import occlusion
     from mata_eval.data import synth
 
     synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(1, 8, 96, 64), jobs=1)
@@ -194,9 +194,9 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
 def test_every_run_of_an_experiment_sees_the_same_occlusions(tmp_path):
     """Through the experiment file and the runner's loader: two runs of a matrix (different
     methods) get identical occluded frames and metadata; another experiment seed does not."""
-    from mata_eval import runner
+    from mata_eval.run import runner
     from mata_eval.data import synth
-    from mata_eval.config import load_experiment
+    from mata_eval.run.config import load_experiment
 
     synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(2, 30, 96, 64, seed=2), jobs=1)
     text = f"""

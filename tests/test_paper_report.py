@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mata_eval import cli, results
+from mata_eval import cli
+from mata_eval.run import results
 from mata_eval.score.evaluate import evaluate_run
-from mata_eval.paper_report import (PlacementError, build_table, load_runs, render_paper_table, to_latex)
-from mata_eval.sequence import Sequence
+from mata_eval.report.paper import (PlacementError, build_table, load_runs, render_paper_table, to_latex)
+from mata_eval.core.sequence import Sequence
 
 N = 20  # frames per sequence; 30 fps -> 2/3 s of camera time
 GT = np.array([10.0, 10.0, 20.0, 20.0])

@@ -5,7 +5,7 @@ from typing import Literal
 
 import pytest
 
-from mata_eval.errors import ConfigError
+from mata_eval.core.errors import ConfigError
 from mata_eval.params import build_params, describe, param
 
 

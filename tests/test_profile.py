@@ -13,13 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mata_eval.config import load_experiment
+from mata_eval.run.config import load_experiment
 from mata_eval.params import param
-from mata_eval.profile import add_cli, back_and_forth, describe_machine, profile_run, time_blocks
-from mata_eval.registry import PluginEntry, Registry, load_registry
-from mata_eval.runner import run_experiment
-from mata_eval.sequence import Sequence
-from mata_eval.timing_profile import read_profile
+from mata_eval.deploy.profile import add_cli, back_and_forth, describe_machine, profile_run, time_blocks
+from mata_eval.core.registry import PluginEntry, Registry, load_registry
+from mata_eval.run.runner import run_experiment
+from mata_eval.core.sequence import Sequence
+from mata_eval.run.timing_profile import read_profile
 from mata_eval.types import Box, Estimate, Motion, TrackerOutput
 
 
@@ -163,7 +163,7 @@ def test_profile_file_drives_an_eop_run(tmp_path, monkeypatch):
     seq = Frames(Frames.Params()).sequences()[0]
     clock = FakeClock()
     samples = time_blocks(seq, CostTracker(clock, [0.125] * 12), frames=10, warmup=2, clock=clock)
-    from mata_eval.timing_profile import profile_from_samples, write_profile
+    from mata_eval.run.timing_profile import profile_from_samples, write_profile
 
     prof_path = write_profile(profile_from_samples(samples, describe_machine()), tmp_path / "prof.json")
     back = read_profile(prof_path)
@@ -208,7 +208,7 @@ def test_cli_writes_the_profile_and_asks_for_a_run(tmp_path, capsys, monkeypatch
             a: {{name: eop}}
             b: {{name: eop, tracker_hz: 10}}
         """))
-    import mata_eval.config as config
+    import mata_eval.run.config as config
 
     real_load = config.load_experiment
     monkeypatch.setattr(config, "load_experiment", lambda p, registry=None: real_load(p, _registry()))
@@ -231,7 +231,7 @@ def test_cli_writes_the_profile_and_asks_for_a_run(tmp_path, capsys, monkeypatch
 def test_machine_description_of_a_jetson(monkeypatch):
     """ARM /proc/cpuinfo without 'model name' falls back to the device-tree model; the L4T
     release and nvpmodel's power mode are recorded (texts as a JetPack 6 Orin prints them)."""
-    import mata_eval.profile as prof
+    import mata_eval.deploy.profile as prof
 
     files = {
         "/proc/cpuinfo": "processor\t: 0\nBogoMIPS\t: 62.50\nCPU implementer\t: 0x41\nCPU part\t: 0xd42\n",

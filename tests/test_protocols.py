@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from mata_eval.params import build_params
-from mata_eval.registry import load_registry
-from mata_eval.scheduler import FixedLatency, WallTimeLatency, run_sequence
-from mata_eval.timeline import add_cli, calls_from_trace, held_segments, plot_timeline
+from mata_eval.core.registry import load_registry
+from mata_eval.run.scheduler import FixedLatency, WallTimeLatency, run_sequence
+from mata_eval.report.timeline import add_cli, calls_from_trace, held_segments, plot_timeline
 from mata_eval_plugins.protocols.dsp import DSP
 from mata_eval_plugins.protocols.eop import EOP
 from mata_eval_plugins.protocols.ltp import LTP

@@ -12,12 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mata_eval.config import load_experiment
+from mata_eval.run.config import load_experiment
 from mata_eval.params import param
-from mata_eval.registry import PluginEntry, Registry, load_registry
-from mata_eval.runner import run_experiment
-from mata_eval.sequence import Sequence
-from mata_eval.timeline import add_cli
+from mata_eval.core.registry import PluginEntry, Registry, load_registry
+from mata_eval.run.runner import run_experiment
+from mata_eval.core.sequence import Sequence
+from mata_eval.report.timeline import add_cli
 from mata_eval.types import Box, Estimate, TrackerOutput
 
 

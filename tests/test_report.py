@@ -11,10 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval import cli, report
+from mata_eval import cli
+from mata_eval.report import tables as report
 from mata_eval.score import evaluate, metrics
 from mata_eval.score.metrics import BlockFrequency
-from mata_eval.sequence import Sequence
+from mata_eval.core.sequence import Sequence
 
 
 def run_scores(name: str, lost_at: list[int], attrs: list[set[str]]) -> evaluate.RunScores:
@@ -117,7 +118,7 @@ def test_plots_are_png_files(runs, tmp_path):
 
 
 def toy_run_folder(tmp_path):
-    from mata_eval import results
+    from mata_eval.run import results
 
     d = tmp_path / "run"
     gt = np.tile([10.0, 10.0, 20.0, 20.0], (6, 1))

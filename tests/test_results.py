@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from mata_eval import results
+from mata_eval.run import results
 
 
 def test_predictions_round_trip_in_pysot_layout(tmp_path):

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mata_eval.config import load_experiment
+from mata_eval.run.config import load_experiment
 from mata_eval.params import param
-from mata_eval.registry import PluginEntry, Registry, load_registry
-from mata_eval.runner import ResultsConflict, run_experiment
-from mata_eval.sequence import FrameReadError, Sequence
+from mata_eval.core.registry import PluginEntry, Registry, load_registry
+from mata_eval.run.runner import ResultsConflict, run_experiment
+from mata_eval.core.sequence import FrameReadError, Sequence
 from mata_eval.types import Box, TrackerOutput
 
 CALLS: list[str] = []
@@ -198,13 +198,13 @@ def test_a_worker_killed_by_the_os_fails_only_its_sequence(tmp_path, monkeypatch
 
     if multiprocessing.get_start_method() != "fork":
         pytest.skip("the fake plugins reach the workers only through fork")
-    import mata_eval.config
+    import mata_eval.run.config
 
     base = _registry()
     entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
     reg = Registry({**base.plugins, "dataset": {"victims": entry("dataset", VictimDataset)},
                     "tracker": {"killer": entry("tracker", KillerTracker)}}, ())
-    monkeypatch.setattr(mata_eval.config, "load_registry", lambda: reg)
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", lambda: reg)
     p = tmp_path / "exp.yaml"
     p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: victims}}\ntracker: {{name: killer}}\n")
     exp = load_experiment(p, reg)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from mata_eval.scheduler import (BlockError, BlockTiming, FixedLatency, Timing, read_trace_csv,
+from mata_eval.run.scheduler import (BlockError, BlockTiming, FixedLatency, Timing, read_trace_csv,
                                  run_sequence, turn_frames)
-from mata_eval.sequence import FrameReadError, Sequence
+from mata_eval.core.sequence import FrameReadError, Sequence
 from mata_eval.types import Box, Estimate, Motion, TrackerOutput
 from mata_eval_plugins.protocols.dsp import DSP
 from mata_eval_plugins.protocols.eop import EOP

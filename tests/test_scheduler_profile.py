@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from mata_eval.scheduler import run_sequence
-from mata_eval.timing_profile import (BlockProfile, ProfileError, profile_from_samples, read_profile,
+from mata_eval.run.scheduler import run_sequence
+from mata_eval.run.timing_profile import (BlockProfile, ProfileError, profile_from_samples, read_profile,
                                       write_profile)
 from mata_eval_plugins.protocols.eop import EOP
 

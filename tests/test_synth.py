@@ -12,7 +12,7 @@ import pytest
 
 from mata_eval.data import synth
 from mata_eval.data.synth import motion, writer
-from mata_eval.datasets.annotations import parse_config_seqs, read_attribute_flags, read_boxes
+from mata_eval.data.datasets.annotations import parse_config_seqs, read_attribute_flags, read_boxes
 
 W, H = 160, 120
 
@@ -201,9 +201,9 @@ def test_load_true_homographies_errors_name_the_file(tmp_path):
 
 
 def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkeypatch):
-    from mata_eval.datasets.synthetic import SyntheticDataset
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
     from mata_eval.params import build_params
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
 
     assert load_registry().get("dataset", "synthetic").cls is SyntheticDataset
     monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
@@ -223,7 +223,7 @@ def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkey
         assert s.image(5).shape == (H, W, 3) and s.meta["image_size"] == (W, H)
     other = SyntheticDataset(dataclasses.replace(params, seed=4))
     assert other.root != ds.root
-    from mata_eval.datasets.annotations import DatasetError
+    from mata_eval.data.datasets.annotations import DatasetError
 
     with pytest.raises(DatasetError, match="seed=3"):
         SyntheticDataset(dataclasses.replace(params, seed=4, root=str(ds.root))).sequences()

@@ -131,7 +131,7 @@ def test_bad_input_errors():
 
 
 def test_registered_as_kcf():
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
 
     assert load_registry().plugins["tracker"]["kcf"].cls is KCFTracker
 

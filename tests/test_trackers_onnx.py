@@ -200,7 +200,7 @@ def test_prior_recovers_a_jump_beyond_the_search_region(models, cls):
 
 
 def test_registered(models):
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
 
     trackers = load_registry().plugins["tracker"]
     assert trackers["vittrack"].cls is VitTrack and trackers["nanotrack"].cls is NanoTrack

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mata_eval.registry import load_registry
+from mata_eval.core.registry import load_registry
 from mata_eval.types import Box, Motion, Stamped, TrackerOutput
 from mata_eval_plugins.estimators.zoh import ZeroOrderHold
 

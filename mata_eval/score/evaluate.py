@@ -25,10 +25,10 @@ from typing import Any, Iterable, Mapping, Sequence as Seq
 
 import numpy as np
 
-from .. import results
+from ..run import results
 from . import metrics
 from .metrics import Aggregate, BlockFrequency, SequenceScores
-from ..sequence import Sequence
+from ..core.sequence import Sequence
 
 SCORES = "scores.json"
 LAYOUTS = ("mata", "pysot", "got10k", "pytracking")
@@ -318,8 +318,8 @@ def load_scores(run_dir: Path) -> RunScores:
 
 def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list[Sequence]:
     """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
-    from ..params import build_params
-    from ..registry import load_registry
+    from ..core.params import build_params
+    from ..core.registry import load_registry
 
     cls = load_registry().get("dataset", name).cls
     values = dict(extra or {})
@@ -344,7 +344,7 @@ def _parse_sets(items: Seq[str] | None) -> dict[str, Any]:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from ..report import render_table
+    from ..report.tables import render_table
 
     try:
         seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))

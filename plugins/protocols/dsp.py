@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
-from mata_eval.scheduler import BLOCKS, BlockTiming, Timing
+from mata_eval.run.scheduler import BLOCKS, BlockTiming, Timing
 
 
 class DSP:

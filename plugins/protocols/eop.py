@@ -15,8 +15,8 @@ from typing import Any
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
-from mata_eval.scheduler import BLOCKS, BlockTiming, FixedLatency, Latency, ProfileLatency, Timing
-from mata_eval.timing_profile import TimingProfile, read_profile
+from mata_eval.run.scheduler import BLOCKS, BlockTiming, FixedLatency, Latency, ProfileLatency, Timing
+from mata_eval.run.timing_profile import TimingProfile, read_profile
 
 CONSUMERS = BLOCKS + ("output",)
 _LATENCY_HELP = "'period' (one period of its rate), 'none', seconds, or 'profile' (drawn from latency_profile)"

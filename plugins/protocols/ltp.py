@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mata_eval.hooks import hookimpl
-from mata_eval.scheduler import Timing, every_frame
+from mata_eval.run.scheduler import Timing, every_frame
 
 
 class LTP:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
-from mata_eval.scheduler import BLOCKS, BlockTiming, FixedLatency, Timing, WallTimeLatency
+from mata_eval.run.scheduler import BLOCKS, BlockTiming, FixedLatency, Timing, WallTimeLatency
 
 
 class VotRealTime:

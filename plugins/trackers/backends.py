@@ -185,7 +185,7 @@ def _np(t) -> np.ndarray:
 
 class _ExportedGraphs:
     def __init__(self, folder: str | Path, model: str, backend: Backend, device: Device, threads: int, fp16: bool):
-        from mata_eval.export import read_manifest
+        from mata_eval.deploy.export import read_manifest
 
         self.folder = Path(folder).expanduser()
         self.doc = read_manifest(self.folder, model)

@@ -288,7 +288,7 @@ class MissingFrames:
         self.looked_in = tuple(str(p) for p in looked_in)
 
     def __call__(self, k: int) -> np.ndarray:
-        from ..sequence import FrameReadError
+        from ...core.sequence import FrameReadError
 
         raise FrameReadError(f"cannot read frame {k} of sequence {self.sequence!r}: no image files found "
                              f"in {' or '.join(self.looked_in)} (only the annotations are present)")

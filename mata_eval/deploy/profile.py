@@ -30,8 +30,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .timing_profile import TimingProfile, profile_from_samples, write_profile
-from .types import Stamped
+from ..run.timing_profile import TimingProfile, profile_from_samples, write_profile
+from ..core.types import Stamped
 
 DEFAULT_FRAMES = 200
 DEFAULT_WARMUP = 20
@@ -125,7 +125,7 @@ def thread_settings() -> dict[str, Any]:
 
 def describe_machine() -> dict[str, Any]:
     """Free-form description of this machine stored in the profile's ``machine`` block."""
-    from .results import package_versions
+    from ..run.results import package_versions
 
     desc: dict[str, Any] = {"cpu": cpu_model(), "platform": platform.platform(), "machine": platform.machine(),
                             "threads": thread_settings(), "versions": package_versions()}
@@ -201,7 +201,7 @@ def profile_run(spec: Any, *, frames: int = DEFAULT_FRAMES, warmup: int = DEFAUL
                 experiment: str | None = None) -> TimingProfile:
     """Time the blocks of one run (a :class:`mata_eval.config.RunSpec`) on one sequence of its
     dataset (the first, or the one named) and build the timing profile."""
-    from .runner import load_sequences
+    from ..run.runner import load_sequences
 
     seqs = load_sequences(spec)
     if not seqs:
@@ -237,7 +237,7 @@ def summary_table(profile: TimingProfile) -> str:
 # --- CLI ----------------------------------------------------------------------------------------
 
 def cmd_profile(args: argparse.Namespace) -> int:
-    from .config import load_experiment
+    from ..run.config import load_experiment
 
     exp = load_experiment(args.experiment)
     if args.run is None:

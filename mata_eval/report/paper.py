@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from .score.evaluate import RunScores
+from ..score.evaluate import RunScores
 
 PAPER_TABLES = ("protocols", "challenges", "ablation", "embedded")
 PAPER_FORMATS = ("markdown", "latex")
@@ -122,8 +122,8 @@ def place(scores: RunScores, manifest: Mapping[str, Any] | None) -> PlacedRun:
 
 def load_runs(run_dirs: Sequence[str | Path]) -> list[PlacedRun]:
     """Score (when needed) and place every run folder."""
-    from . import results
-    from .report import scores_for
+    from ..run import results
+    from .tables import scores_for
 
     placed = []
     for d in run_dirs:
@@ -499,7 +499,7 @@ _TEX_COLUMNS = {"|dSR|": r"$\Delta$SR", "|dNT2F|": r"$\Delta$NT2F"}
 def to_latex(t: PaperTable, label: str | None = None) -> str:
     """A booktabs ``table*`` like the paper's: ``\\multirow`` stub cells, ``\\multicolumn`` dataset
     / challenge groups, a double ``\\midrule`` between blocks."""
-    from .report import latex_escape
+    from .tables import latex_escape
 
     def tex(v: str, stub: bool) -> str:
         return _TEX_MARK[v] if stub and v in _TEX_MARK else latex_escape(v)
@@ -620,7 +620,7 @@ def html_summary(title: str, sections: Sequence[tuple[PaperTable, Sequence[Path]
 
 def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
     """Provenance lines for the summary: experiments, commits and machines of the runs."""
-    from . import results
+    from ..run import results
 
     exps, commits, machines = [], [], []
     for r in runs:
@@ -652,7 +652,7 @@ def write_paper_report(sections: Sequence[tuple[str, Sequence[PlacedRun]]], out:
     """For each (table kind, runs): ``<kind>.md``, ``<kind>.tex`` and the success / precision /
     NT2F plots of those runs in ``<kind>/``; then ``summary.html``, one page with every table and
     its plots embedded. Returns the written paths."""
-    from .report import plot_curves
+    from .tables import plot_curves
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -678,7 +678,7 @@ def write_paper_report(sections: Sequence[tuple[str, Sequence[PlacedRun]]], out:
 
 def _experiment_runs(path: str) -> tuple[str, list[str]]:
     """(experiment name, its run folders that exist) of an experiment file."""
-    from .config import load_experiment
+    from ..run.config import load_experiment
 
     exp = load_experiment(path)
     dirs = [str(exp.output / r.name) for r in exp.runs if (exp.output / r.name).is_dir()]
@@ -695,7 +695,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
     from its name (protocols, challenges, ablation, embedded)."""
     import sys
 
-    from .report import ScoresUnavailable
+    from .tables import ScoresUnavailable
 
     try:
         plan: list[tuple[str, list[str]]] = []
@@ -730,7 +730,7 @@ def cmd_per_sequence(args: argparse.Namespace) -> int:
     """``mata-eval report --per-sequence A B``: the per-sequence comparison of two runs."""
     import sys
 
-    from .report import ScoresUnavailable, scores_for
+    from .tables import ScoresUnavailable, scores_for
 
     if len(args.run_dirs) != 2:
         print(f"error: --per-sequence compares exactly two run folders, got {len(args.run_dirs)}", file=sys.stderr)

@@ -31,9 +31,9 @@ from typing import Literal, Sequence as Seq
 import cv2
 import numpy as np
 
-from .errors import ConfigError
-from .params import param
-from .sequence import Sequence
+from ..core.errors import ConfigError
+from ..core.params import param
+from ..core.sequence import Sequence
 
 SHAPES = ("rectangle", "ellipse", "circle", "blob", "polygon", "stripe")
 ShapeName = Literal["rectangle", "ellipse", "circle", "blob", "polygon", "stripe"]
@@ -458,8 +458,8 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
     000001.jpg), ground truth unchanged, original attribute flags, per-frame occlusion metadata
     (``anno/UAV123/occlusion/``), true homographies when the input has them, and a contact sheet
     per sequence (``contact_sheets/<seq>.png``). Returns the names written."""
-    from .data.synth import UAV123_ATTRIBUTES
-    from .data.synth.writer import format_box, write_config_seqs
+    from .synth import UAV123_ATTRIBUTES
+    from .synth.writer import format_box, write_config_seqs
 
     out = Path(out)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -519,9 +519,9 @@ def add_cli(subparsers) -> None:
 
 
 def _cmd_augment(args: argparse.Namespace) -> int:
-    from .errors import ConfigError
-    from .params import build_params
-    from .registry import load_registry
+    from ..core.errors import ConfigError
+    from ..core.params import build_params
+    from ..core.registry import load_registry
 
     values: dict = {}
     if args.config:

@@ -42,9 +42,9 @@ from typing import Any
 
 import yaml
 
-from .errors import ConfigError
-from .params import build_params
-from .registry import Registry, load_registry
+from ..core.errors import ConfigError
+from ..core.params import build_params
+from ..core.registry import Registry, load_registry
 
 PLUGIN_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")  # = plugin kinds
 NULLABLE = {"egomotion", "estimator", "occlusion"}
@@ -270,7 +270,7 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
 
     occlusion = None
     if cfg["occlusion"] is not None:
-        from .occlusion import OcclusionParams
+        from ..data.occlusion import OcclusionParams
 
         if not isinstance(cfg["occlusion"], dict):
             raise ConfigError(where(("occlusion",)), ("occlusion",), "expected a mapping of occlusion parameters or null")
@@ -293,7 +293,7 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
             raise ConfigError(where(("metrics", k)), ("metrics", k),
                               f"unknown key; expected one of: {', '.join(sorted(METRICS_KEYS))}")
     profile = metrics.get("profile", "default")
-    from .core.metric_profiles import PROFILES
+    from ..core.metric_profiles import PROFILES
 
     if profile not in PROFILES:
         raise ConfigError(where(("metrics", "profile")), ("metrics", "profile"),

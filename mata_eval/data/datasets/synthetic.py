@@ -14,9 +14,9 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..hooks import hookimpl
-from ..params import param
-from ..sequence import Sequence
+from ...core.hooks import hookimpl
+from ...core.params import param
+from ...core.sequence import Sequence
 from .annotations import DatasetError
 
 
@@ -60,14 +60,14 @@ class SyntheticDataset:
     def root(self) -> Path:
         if self.params.root:
             return Path(self.params.root).expanduser()
-        from ..data.synth import GENERATOR_VERSION
+        from ..synth import GENERATOR_VERSION
 
         key = json.dumps({**self.generation, "version": GENERATOR_VERSION}, sort_keys=True)
         return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def ensure(self) -> Path:
         """Generate the suite at :attr:`root` unless a complete one is there; returns the root."""
-        from ..data.synth import read_suite_info, write_suite
+        from ..synth import read_suite_info, write_suite
 
         root = self.root
         info = read_suite_info(root)
@@ -97,7 +97,7 @@ def read_suite(root: str | Path, sequences: list[str] | None = None) -> list[Seq
     UAV123 loader, with the true homographies in ``meta["homographies"]``."""
     import dataclasses
 
-    from ..data.synth import load_true_homographies, read_suite_info
+    from ..synth import load_true_homographies, read_suite_info
     from .uav123 import UAV123
 
     root = Path(root)

@@ -39,9 +39,9 @@ from typing import Any, Callable, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
-from .sequence import Sequence
+from ..core.sequence import Sequence
 from .timing_profile import BlockProfile
-from .types import Box, Estimate, Motion, Stamped, TrackerOutput
+from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
 
 #: The blocks. ``camera`` only delivers frames.
 BLOCKS = ("egomotion", "tracker", "estimator")

@@ -17,8 +17,8 @@ from typing import Sequence
 
 import numpy as np
 
-from .score.evaluate import SCORES, RunScores, load_scores
-from .score.metrics import NORM_GRID, PIXEL_GRID, Summary
+from ..score.evaluate import SCORES, RunScores, load_scores
+from ..score.metrics import NORM_GRID, PIXEL_GRID, Summary
 
 FORMATS = ("terminal", "markdown", "csv", "latex")
 TABLES = ("overall", "challenges")
@@ -312,7 +312,7 @@ def scores_for(run_dir: Path) -> RunScores:
     d = Path(run_dir)
     if d.is_file() or (d / SCORES).is_file():
         return load_scores(d)
-    from . import results
+    from ..run import results
 
     manifest = results.read_manifest(d)
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
@@ -322,9 +322,9 @@ def scores_for(run_dir: Path) -> RunScores:
     if not exp_file or not Path(exp_file).is_file():
         raise ScoresUnavailable(f"{d}: no {SCORES}, and the experiment file {exp_file!r} named in its "
                                 f"manifest cannot be read; {hint}")
-    from .config import load_experiment
-    from .score.evaluate import evaluate_run
-    from .runner import load_sequences
+    from ..run.config import load_experiment
+    from ..score.evaluate import evaluate_run
+    from ..run.runner import load_sequences
 
     exp = load_experiment(exp_file)
     spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
@@ -338,11 +338,11 @@ def scores_for(run_dir: Path) -> RunScores:
 
 def cmd_report(args: argparse.Namespace) -> int:
     if getattr(args, "per_sequence", False):
-        from .paper_report import cmd_per_sequence
+        from .paper import cmd_per_sequence
 
         return cmd_per_sequence(args)
     if getattr(args, "paper", None) or getattr(args, "experiment", None):
-        from .paper_report import cmd_paper
+        from .paper import cmd_paper
 
         if not args.paper:
             args.paper = "auto"
@@ -389,7 +389,7 @@ def add_cli(subparsers) -> None:
     p.add_argument("--table", choices=TABLES + ("both",), default="overall",
                    help="overall metrics, per-challenge SR/NT2F (paper Table 2), or both")
     p.add_argument("--no-plots", action="store_true", help="with --out: tables only")
-    from .paper_report import PAPER_TABLES
+    from .paper import PAPER_TABLES
 
     p.add_argument("--paper", choices=PAPER_TABLES + ("auto",),
                    help="render the paper's table (protocols = Table 1, challenges = 2, ablation = 3, "

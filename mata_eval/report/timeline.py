@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
-from .scheduler import BLOCKS, LANES, TraceEvent, read_trace_csv
+from ..run.scheduler import BLOCKS, LANES, TraceEvent, read_trace_csv
 
 COLORS = {"camera": "#7f7f7f", "egomotion": "#2ca02c", "tracker": "#1f77b4", "estimator": "#d62728"}
 

@@ -17,9 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..hooks import hookimpl
-from ..params import param
-from ..sequence import Sequence
+from ...core.hooks import hookimpl
+from ...core.params import param
+from ...core.sequence import Sequence
 from .annotations import AnnotationError, DatasetError, MissingFrames, list_images, read_boxes, select
 
 

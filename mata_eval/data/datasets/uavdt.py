@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..hooks import hookimpl
-from ..params import param
-from ..sequence import Sequence
+from ...core.hooks import hookimpl
+from ...core.params import param
+from ...core.sequence import Sequence
 from .annotations import DatasetError, list_images, read_attribute_flags, read_boxes, select
 
 #: Flag order of ``att/<seq>_att.txt``: background clutter, camera motion, object motion, small

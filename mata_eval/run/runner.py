@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from . import results
 from .config import Experiment, PluginBlock, RunSpec, load_experiment
-from .sequence import Sequence
+from ..core.sequence import Sequence
 
 
 class ResultsConflict(RuntimeError):
@@ -59,7 +59,7 @@ def load_sequences(spec: RunSpec) -> list[Sequence]:
     if key not in _SEQUENCES:
         seqs = list(spec.dataset.create().sequences())
         if spec.occlusion is not None:
-            from .occlusion import augment_sequence
+            from ..data.occlusion import augment_sequence
 
             seqs = [augment_sequence(s, spec.occlusion, spec.seed) for s in seqs]
         _SEQUENCES[key] = seqs
@@ -215,7 +215,7 @@ def run_experiment(
 
 def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[Any]:
     """Score every run folder (writes ``scores.json`` in each) and return the run scores."""
-    from .score.evaluate import evaluate_run
+    from ..score.evaluate import evaluate_run
 
     scores = []
     for spec in exp.runs:

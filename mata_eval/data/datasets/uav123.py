@@ -15,9 +15,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..hooks import hookimpl
-from ..params import param
-from ..sequence import Sequence
+from ...core.hooks import hookimpl
+from ...core.params import param
+from ...core.sequence import Sequence
 from .annotations import (DatasetError, FrameRange, list_images, read_attribute_flags, read_boxes,
                           read_frame_ranges, select)
 

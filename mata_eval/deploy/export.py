@@ -161,7 +161,7 @@ def _export_checked(role: str, module: Any, example: dict[str, np.ndarray], pari
 
 
 def _write_manifest(result: ExportResult, extra: dict) -> Path:
-    from . import results
+    from ..run import results
 
     doc = {"format": "mata-eval export", "version": 1, "model": result.model, "config": result.config,
            "graphs": {g.role: {"file": g.path.name, "inputs": list(g.inputs), "outputs": list(g.outputs),
