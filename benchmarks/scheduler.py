@@ -95,7 +95,7 @@ def synthetic_sequences(count: int, n: int) -> tuple[list[Sequence], str]:
             frames, gt, *_ = synth.render_sequence(s, n, 320, 240)
             frames = list(frames)
             seqs.append(Sequence(f"synth{s}", np.asarray(gt, float), 30.0, loader=lambda k, f=frames: f[k]))
-        return seqs, "mata_eval.synth.render_sequence"
+        return seqs, "mata_eval.data.synth.render_sequence"
     except Exception as exc:  # synth not written yet, or another API
         return [moving_target_sequence(s, n) for s in range(count)], f"built-in moving target ({type(exc).__name__} from synth)"
 

@@ -9,7 +9,7 @@ beforehand, JPEG decoding excluded); the figure is the median per-frame time of 
 Baseline measured in the same run: ``cv2.TrackerVit`` / ``cv2.TrackerNano`` on the same frames
 (``--opencv``, on by default when the models are present), printed as a ratio.
 Accuracy: mean IoU against the ground truth per real sequence, one pass from the first frame.
-``--synthetic N``: also the default synthetic suite (``mata_eval.synth.suite_specs``, 1280x720):
+``--synthetic N``: also the default synthetic suite (``mata_eval.data.synth.suite_specs``, 1280x720):
 per tracker, how many sequences it *holds* (success rate, IoU > 0.5 over the frames where the
 target is visible, of at least 0.5) and the mean IoU over visible frames.
 """

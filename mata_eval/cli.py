@@ -1,25 +1,29 @@
-"""The ``mata-eval`` command."""
+"""The ``mata-eval`` command: the only module that builds argparse parsers. Each subcommand is a
+``cmd_*`` function that parses nothing itself and calls the plain functions of the packages
+(``run``, ``score``, ``report``, ``data``, ``deploy``)."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
+import os
 import sys
 from pathlib import Path
+from typing import Any, Mapping, Sequence
 
 from . import __version__
 from .core.errors import ConfigError
 
-# Modules that contribute a subcommand through ``add_cli(subparsers)``.
-SUBCOMMAND_MODULES = (
-    "mata_eval.score.evaluate",  # eval
-    "mata_eval.report.tables",  # report
-    "mata_eval.data.occlusion",  # augment
-    "mata_eval.report.timeline",  # timeline
-    "mata_eval.deploy.profile",  # profile
-    "mata_eval.deploy.export",  # export
-)
+#: file extension of each table format written by ``mata-eval report --out``
+EXTENSIONS = {"terminal": "txt", "markdown": "md", "csv": "csv", "latex": "tex"}
+
+TIMELINE_DOC = """Timeline plot of a scheduler trace (paper section 3.1, fig. "protocol comparison").
+
+``mata-eval timeline RUN_DIR SEQ [--out PNG] [--frames A:B] [--compare RUN_DIR ...]`` draws
+``RUN_DIR/SEQ.trace.csv`` (and the same sequence of other runs as panels below it)."""
+
+
+# --- commands ---------------------------------------------------------------------------------
 
 
 def cmd_list(args: argparse.Namespace) -> int:
@@ -48,7 +52,8 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from .run.config import load_experiment
-    from .run.runner import ResultsConflict, evaluate_experiment, run_experiment
+    from .run.runner import ResultsConflict, run_experiment
+    from .score.evaluate import evaluate_experiment
 
     exp = load_experiment(args.experiment)
     if args.output:
@@ -62,7 +67,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 2
     if args.no_report:
         return 0
-    from .report.tables import plot_curves, render_table
+    from .report.overview import render_table
+    from .report.plots import plot_curves
 
     scores = evaluate_experiment(exp, only=args.runs)
     print(render_table(scores, "terminal"))
@@ -110,6 +116,453 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list:
+    """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
+    from .core.params import build_params
+    from .core.registry import load_registry
+
+    cls = load_registry().get("dataset", name).cls
+    values = dict(extra or {})
+    if root is not None:
+        values["root"] = root
+    return list(cls(build_params(cls.Params, values)).sequences())
+
+
+def _parse_sets(items: Sequence[str] | None) -> dict[str, Any]:
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            import yaml
+
+            out[key] = yaml.safe_load(value)
+        except Exception:
+            out[key] = value
+    return out
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from .report.overview import render_table
+    from .score.evaluate import detect_layout, evaluate_results, save_scores
+
+    try:
+        seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))
+        layout = args.layout
+        if layout == "mata" or (layout == "auto" and detect_layout(Path(args.results_dir)) == "mata"):
+            scores = evaluate_results(args.results_dir, seqs, args.profile, layout="mata")
+            if not args.no_save:
+                print(f"wrote {save_scores(args.results_dir, scores)}")
+        else:
+            scores = evaluate_results(args.results_dir, seqs, args.profile, layout=layout, name=args.name)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    if args.output:
+        print(f"wrote {save_scores(Path(args.output), scores)}")
+    print(render_table([scores], "terminal"))
+    if args.challenges:
+        print(render_table([scores], "terminal", table="challenges"))
+    if scores.missing:
+        print(f"{len(scores.missing)} sequence(s) without results: {', '.join(scores.missing[:10])}"
+              + (" ..." if len(scores.missing) > 10 else ""))
+    if scores.meta.get("unmatched_results"):
+        un = scores.meta["unmatched_results"]
+        print(f"{len(un)} result file(s) match no sequence of {args.dataset}: {', '.join(un[:10])}"
+              + (" ..." if len(un) > 10 else ""))
+    return 0 if scores.sequences else 1
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    if getattr(args, "per_sequence", False):
+        return cmd_per_sequence(args)
+    if getattr(args, "paper", None) or getattr(args, "experiment", None):
+        if not args.paper:
+            args.paper = "auto"
+        return cmd_paper(args)
+    from .report.overview import FORMATS, TABLES, render_table
+    from .report.plots import plot_curves
+    from .score.evaluate import ScoresUnavailable, scores_for
+
+    if not args.run_dirs:
+        print("error: give run folders (or --experiment EXP.yaml with --paper)", file=sys.stderr)
+        return 2
+    runs = []
+    for d in args.run_dirs:
+        try:
+            runs.append(scores_for(Path(d)))
+        except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    fmts = FORMATS if args.format == "all" else (args.format,)
+    tables = TABLES if args.table == "both" else (args.table,)
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    for table in tables:
+        for fmt in fmts:
+            text = render_table(runs, fmt, table)
+            if out and fmt != "terminal":
+                path = out / f"{table}.{EXTENSIONS[fmt]}"
+                path.write_text(text)
+                print(f"wrote {path}")
+            elif not out or fmt == "terminal":
+                print(text)
+    if out and not args.no_plots:
+        for p in plot_curves(runs, out):
+            print(f"plot: {p}")
+    return 0
+
+
+def cmd_paper(args: argparse.Namespace) -> int:
+    """``mata-eval report --paper KIND RUN...`` or ``--experiment EXP.yaml ...``: print the
+    table(s) (Markdown, or LaTeX with ``--format latex``); with ``--out`` also write Markdown,
+    LaTeX, plots and the one-page HTML summary. ``--paper auto`` takes each experiment's table
+    from its name (protocols, challenges, ablation, embedded)."""
+    from .report.paper import PAPER_TABLES, build_table, experiment_runs, load_runs, write_paper_report
+    from .report.tables import render
+    from .score.evaluate import ScoresUnavailable
+
+    try:
+        plan: list[tuple[str, list[str]]] = []
+        for exp_file in args.experiment or []:
+            name, dirs = experiment_runs(exp_file)
+            kind = name if args.paper == "auto" else args.paper
+            if kind not in PAPER_TABLES:
+                raise ValueError(f"{exp_file}: experiment {name!r} is not one of the paper's tables "
+                                 f"({', '.join(PAPER_TABLES)}); choose one with --paper")
+            plan.append((kind, dirs))
+        if args.run_dirs:
+            if args.paper == "auto":
+                raise ValueError("--paper auto needs --experiment files; name the table for run folders")
+            plan.append((args.paper, list(args.run_dirs)))
+        if not plan:
+            raise ValueError("no runs: give run folders or --experiment files")
+        sections = [(kind, load_runs(dirs)) for kind, dirs in plan]
+        tables = [build_table(kind, runs) for kind, runs in sections]
+    except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    fmt = "latex" if args.format == "latex" else "markdown"
+    for t in tables:
+        print(render(t, fmt))
+    if args.out:
+        for p in write_paper_report(sections, Path(args.out), plots=not args.no_plots):
+            print(f"wrote {p}")
+    return 0
+
+
+def cmd_per_sequence(args: argparse.Namespace) -> int:
+    """``mata-eval report --per-sequence A B``: the per-sequence comparison of two runs."""
+    from .report.paper import sequence_comparison
+    from .report.tables import render
+    from .score.evaluate import ScoresUnavailable, scores_for
+
+    if len(args.run_dirs) != 2:
+        print(f"error: --per-sequence compares exactly two run folders, got {len(args.run_dirs)}", file=sys.stderr)
+        return 2
+    try:
+        t = sequence_comparison(scores_for(Path(args.run_dirs[0])), scores_for(Path(args.run_dirs[1])))
+    except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(render(t, "latex" if args.format == "latex" else "markdown"))
+    return 0
+
+
+def cmd_augment(args: argparse.Namespace) -> int:
+    from .core.params import build_params
+    from .core.registry import load_registry
+    from .data.occlusion import OcclusionParams, write_augmented
+
+    values: dict = {}
+    if args.config:
+        import yaml
+
+        data = yaml.safe_load(Path(args.config).read_text()) or {}
+        values = dict(data.get("occlusion", data) or {})
+    if args.n_events is not None:
+        values["n_events"] = args.n_events
+    if args.shapes:
+        values["shapes"] = list(args.shapes)
+    if args.duration is not None:
+        values["duration"] = args.duration
+    try:
+        params = build_params(OcclusionParams, values, ("occlusion",),
+                              (lambda kp: str(args.config)) if args.config else None)
+        if args.root and args.dataset == "synthetic" and (Path(args.root) / "synth.json").is_file():
+            from .data.datasets.synthetic import read_suite  # a suite written by `mata-eval synth`, as it is
+
+            sequences = read_suite(args.root, args.sequences)
+        else:
+            entry = load_registry().get("dataset", args.dataset)
+            block = {k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}
+            dataset = entry.cls(build_params(entry.cls.Params, block, ("dataset",)))
+            sequences = dataset.sequences()
+    except (ConfigError, KeyError, ValueError) as e:
+        print(f"mata-eval augment: {e}")
+        return 2
+    try:
+        names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True,
+                                overwrite=args.force)
+    except FileExistsError as e:
+        print(f"mata-eval augment: {e}")
+        return 2
+    print(f"wrote {len(names)} augmented sequences to {args.out} (contact sheets in {Path(args.out) / 'contact_sheets'})")
+    return 0
+
+
+def parse_frames(text: str) -> tuple[int, int]:
+    """``"A:B"`` -> ``(A, B)``."""
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--frames: expected A:B (two integers), got {text!r}") from None
+    if not 0 <= a < b:
+        raise argparse.ArgumentTypeError(f"--frames: expected 0 <= A < B, got {text!r}")
+    return a, b
+
+
+def cmd_timeline(args: argparse.Namespace) -> int:
+    from .report.timeline import plot_timeline
+    from .run.scheduler import read_trace_csv
+
+    run_dir = Path(args.run_dir)
+    trace_path = run_dir / f"{args.seq}.trace.csv"
+    if not trace_path.is_file():
+        have = sorted(p.name[: -len(".trace.csv")] for p in run_dir.glob("*.trace.csv"))
+        print(f"mata-eval timeline: no trace {trace_path}; sequences with a trace: "
+              f"{', '.join(have) or '(none)'}", file=sys.stderr)
+        return 2
+    traces = {}
+    for d in [run_dir] + [Path(c) for c in (args.compare or [])]:
+        path = d / f"{args.seq}.trace.csv"
+        try:
+            traces[d.name] = read_trace_csv(path.read_text())
+        except OSError as exc:
+            print(f"mata-eval timeline: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
+            return 2
+        except ValueError as exc:
+            print(f"mata-eval timeline: {path}: {exc}", file=sys.stderr)
+            return 2
+    out = Path(args.out) if args.out else run_dir / f"{args.seq}.timeline.png"
+    plot_timeline(traces, out, frames=args.frames, title=args.seq)
+    print(out)
+    return 0
+
+
+def cmd_profile(args: argparse.Namespace) -> int:
+    from .deploy.profile import profile_run, summary_table
+    from .run.config import load_experiment
+    from .run.timing_profile import write_profile
+
+    exp = load_experiment(args.experiment)
+    if args.run is None:
+        if len(exp.runs) > 1:
+            names = ", ".join(r.name for r in exp.runs)
+            print(f"error: {exp.path} has {len(exp.runs)} runs; choose one with --run (runs: {names})", file=sys.stderr)
+            return 2
+        spec = exp.runs[0]
+    else:
+        matches = [r for r in exp.runs if r.name == args.run]
+        if not matches:
+            print(f"error: {exp.path}: no run {args.run!r} (runs: {', '.join(r.name for r in exp.runs)})", file=sys.stderr)
+            return 2
+        spec = matches[0]
+    if args.threads:
+        _set_threads(args.threads)
+    try:
+        profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
+                              experiment=str(exp.path))
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    path = write_profile(profile, args.out)
+    print(f"machine: {profile.machine.get('cpu')}" + (f"; GPU {', '.join(profile.machine['gpu'])}" if profile.machine.get("gpu") else "")
+          + (f"; power mode {profile.machine['power_mode']}" if profile.machine.get("power_mode") else ""))
+    print(f"run {spec.name}, sequence {profile.machine['run']['sequence']}: {args.frames} timed calls per block "
+          f"after {args.warmup} warm-up calls")
+    print(summary_table(profile))
+    print(f"timing profile: {path}  (eop: latency_profile: {path}, tracker_hz: profile, tracker_latency: profile)")
+    return 0
+
+
+def _set_threads(n: int) -> None:
+    """Cap the CPU threads of the libraries the blocks use (before they are built)."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = str(n)
+    import cv2
+
+    cv2.setNumThreads(n)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(n)
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from .deploy.export import MANIFEST, ParityError, export_mixformerv2, export_nanotrack, export_ostrack
+
+    if args.checkpoint is None and not args.random_weights:
+        print(f"error: mata-eval export {args.model}: give --checkpoint PATH (the official weights) or "
+              "--random-weights (pipeline tests only)", file=sys.stderr)
+        return 2
+    common = dict(random_weights=args.random_weights, seed=args.seed, trust_pickle=args.trust_pickle,
+                  opset=args.opset, atol=args.atol, rtol=args.rtol)
+    try:
+        if args.model == "nanotrack":
+            result = export_nanotrack(args.out, args.checkpoint, **common)
+        elif args.model == "mixformerv2":
+            forms = {"both": ("full", "two_graph"), "full": ("full",), "two-graph": ("two_graph",)}[args.form]
+            result = export_mixformerv2(args.out, args.checkpoint, variant=args.variant, forms=forms, **common)
+        else:
+            result = export_ostrack(args.out, args.checkpoint, **common)
+    except ParityError as exc:
+        print(f"error: parity check failed: {exc}", file=sys.stderr)
+        return 1
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for g in result.graphs:
+        print(f"{g.role:9s} {g.path}  inputs {', '.join(g.inputs[:3])}{', ...' if len(g.inputs) > 3 else ''}"
+              f"  max |onnxruntime - torch| = {g.max_abs_error:.2e}")
+    print(f"manifest  {result.out_dir / MANIFEST}")
+    return 0
+
+
+# --- parsers ----------------------------------------------------------------------------------
+
+
+def _add_eval(subparsers) -> None:
+    from .core.metric_profiles import PROFILES
+    from .score.evaluate import LAYOUTS
+
+    p = subparsers.add_parser(
+        "eval", help="score a results folder (mata-eval run, pysot, got10k or pytracking layout)",
+        description="Score a results folder against a dataset's annotations (no images are read) and "
+                    "print the table. A mata-eval run folder gets its scores.json (re)written.")
+    p.add_argument("results_dir", metavar="RESULTS_DIR", help="folder with one result file per sequence")
+    p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
+    p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="another dataset parameter (repeatable)")
+    p.add_argument("--layout", choices=("auto",) + LAYOUTS, default="auto",
+                   help="results layout (default: detected)")
+    p.add_argument("--profile", choices=tuple(PROFILES), default="default",
+                   help="metric compatibility profile (default: %(default)s)")
+    p.add_argument("--name", help="run name shown in the table (default: the folder name)")
+    p.add_argument("--output", help="also write scores.json into this folder")
+    p.add_argument("--no-save", action="store_true", help="do not write scores.json into a mata run folder")
+    p.add_argument("--challenges", action="store_true", help="also print the per-challenge table")
+    p.set_defaults(func=cmd_eval)
+
+
+def _add_report(subparsers) -> None:
+    from .report.overview import FORMATS, TABLES
+    from .report.paper import PAPER_TABLES
+
+    p = subparsers.add_parser(
+        "report", help="tables (terminal, Markdown, CSV, LaTeX) and plots of scored runs",
+        description="Report one or more run folders side by side. A run folder without scores.json is "
+                    "scored first when its experiment file is still readable.")
+    p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run folders (or scores.json files)")
+    p.add_argument("--out", help="write tables and success / precision / NT2F plots (PNG) into this folder")
+    p.add_argument("--format", choices=FORMATS + ("all",), default="terminal",
+                   help="table format (default: %(default)s; with --out, 'all' writes every format)")
+    p.add_argument("--table", choices=TABLES + ("both",), default="overall",
+                   help="overall metrics, per-challenge SR/NT2F (paper Table 2), or both")
+    p.add_argument("--no-plots", action="store_true", help="with --out: tables only")
+    p.add_argument("--paper", choices=PAPER_TABLES + ("auto",),
+                   help="render the paper's table (protocols = Table 1, challenges = 2, ablation = 3, "
+                        "embedded = 4) in Markdown (or LaTeX with --format latex), placing each run from its "
+                        "manifest; with --out also write <table>.md, <table>.tex, plots and summary.html. "
+                        "auto (the default with --experiment): the table named like each experiment")
+    p.add_argument("--experiment", action="append", metavar="EXP.yaml",
+                   help="report every run folder of this experiment file (repeatable: one HTML page with "
+                        "several tables)")
+    p.add_argument("--per-sequence", action="store_true",
+                   help="two run folders A B: SR, NT2F and first failure frame of each sequence side by side "
+                        "(Markdown, or LaTeX with --format latex)")
+    p.set_defaults(func=cmd_report)
+
+
+def _add_augment(subparsers) -> None:
+    from .data.occlusion import SHAPES
+
+    p = subparsers.add_parser("augment", help="write an occlusion-augmented copy of a dataset (paper 3.2)",
+                              description="Occlusion augmentation (paper section 3.2): writes OUT in the UAV123 "
+                                          "layout with per-frame occlusion metadata and contact sheets. To "
+                                          "augment at load time instead, add an `occlusion:` block to the experiment.")
+    p.add_argument("out", help="output dataset root")
+    p.add_argument("--dataset", default="synthetic",
+                   help="dataset plugin name (default synthetic: the cached default suite, or the suite "
+                        "written by `mata-eval synth` at --root)")
+    p.add_argument("--root", help="the dataset's root folder (its `root` parameter)")
+    p.add_argument("--sequences", nargs="*", help="only these sequences")
+    p.add_argument("--seed", type=int, default=0, help="experiment seed (default 0)")
+    p.add_argument("--n-events", type=int, default=None, help="events per sequence")
+    p.add_argument("--shapes", nargs="*", choices=SHAPES, help="shape families, cycled over the events")
+    p.add_argument("--duration", type=float, default=None, help="seconds per event")
+    p.add_argument("--config", help="YAML file holding an occlusion block (the experiment's `occlusion:` keys)")
+    p.add_argument("--quality", type=int, default=95, help="JPEG quality (default 95)")
+    p.add_argument("--force", action="store_true", help="write into OUT even if it is not empty")
+    p.set_defaults(func=cmd_augment)
+
+
+def _add_timeline(subparsers) -> None:
+    p = subparsers.add_parser("timeline", help="draw a sequence's scheduler trace (blocks, starts, publishes, held output)",
+                              description=TIMELINE_DOC)
+    p.add_argument("run_dir", metavar="RUN_DIR", help="run folder holding <SEQ>.trace.csv")
+    p.add_argument("seq", metavar="SEQ", help="sequence name")
+    p.add_argument("--out", help="image file to write (default: RUN_DIR/SEQ.timeline.png)")
+    p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
+                   help="frame range to draw, half-open (default: all; long sequences read best with ~60 frames)")
+    p.add_argument("--compare", nargs="+", metavar="RUN_DIR",
+                   help="more run folders (e.g. other protocols) drawn as panels below, like the paper's figure")
+    p.set_defaults(func=cmd_timeline)
+
+
+def _add_profile(subparsers) -> None:
+    from .deploy.profile import DEFAULT_FRAMES, DEFAULT_WARMUP
+
+    p = subparsers.add_parser(
+        "profile", help="time each block of a run on this machine and write a timing profile for eop",
+        description="Build the blocks of one run of an experiment file, feed them real frames of its dataset "
+                    "(decoded beforehand), and record per-block latencies after a warm-up. Writes a timing "
+                    "profile (JSON, or YAML for .yaml) that the eop protocol reads with latency_profile.")
+    p.add_argument("experiment", help="experiment YAML file")
+    p.add_argument("--run", help="which run of the matrix (required when the file has several)")
+    p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
+    p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
+    p.add_argument("--threads", type=int, default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
+    p.add_argument("--out", required=True, help="timing profile file to write (.json, .yaml)")
+    p.set_defaults(func=cmd_profile)
+
+
+def _add_export(subparsers) -> None:
+    from .deploy.export import DEFAULT_ATOL, DEFAULT_OPSET, DEFAULT_RTOL
+
+    p = subparsers.add_parser(
+        "export", help="export a PyTorch tracker to ONNX (parity with torch checked)",
+        description="Export NanoTrack v2 (.pth), MixFormerV2 or OSTrack to ONNX (opset 17, TorchScript exporter). "
+                    "ONNX Runtime's outputs are compared with torch's on random crops; the export fails above "
+                    "the tolerance. Writes export.json beside the graphs.")
+    p.add_argument("model", choices=("nanotrack", "mixformerv2", "ostrack"))
+    p.add_argument("--checkpoint", help="weights: nanotrackv2.pth, mixformerv2_small.pth.tar, OSTrack_ep0300.pth.tar")
+    p.add_argument("--random-weights", action="store_true", help="seeded random weights (pipeline tests and timing only)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random weights and of the parity inputs")
+    p.add_argument("--trust-pickle", action="store_true",
+                   help="allow full unpickling of a trusted legacy checkpoint (default: weights only)")
+    p.add_argument("--variant", choices=("S", "B"), default="S", help="MixFormerV2 variant (default: S)")
+    p.add_argument("--form", choices=("both", "full", "two-graph"), default="both",
+                   help="MixFormerV2: one graph, template encoder + search step, or both (default)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--opset", type=int, default=DEFAULT_OPSET)
+    p.add_argument("--atol", type=float, default=DEFAULT_ATOL, help="parity: absolute tolerance (default %(default)g)")
+    p.add_argument("--rtol", type=float, default=DEFAULT_RTOL, help="parity: relative tolerance (default %(default)g)")
+    p.set_defaults(func=cmd_export)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mata-eval",
@@ -149,14 +602,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="replace an existing suite in OUT")
     p.set_defaults(func=cmd_synth)
 
-    for name in SUBCOMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ImportError as exc:
-            if exc.name == name:  # that feature is not part of this installation
-                continue
-            raise
-        module.add_cli(sub)
+    _add_eval(sub)
+    _add_report(sub)
+    _add_augment(sub)
+    _add_timeline(sub)
+    _add_profile(sub)
+    _add_export(sub)
     return parser
 
 

@@ -182,7 +182,7 @@ def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):
         calls.update(name=name, root=root, extra=extra)
         return seqs
 
-    monkeypatch.setattr(evaluate, "load_dataset", fake_load)
+    monkeypatch.setattr(cli, "load_dataset", fake_load)
     out_dir = tmp_path / "scores"
     rc = cli.main(["eval", str(d), "--dataset", "toy", "--root", "/data/toy", "--profile", "pysot-toolkit",
                    "--output", str(out_dir), "--challenges"])

@@ -124,7 +124,7 @@ def test_embedded_roles_match_the_report():
         def __init__(self, cfg):
             self.config = cfg
 
-    assert sorted(embedded_role(_Run(r.resolved)) for r in exp.runs) == sorted(["embedded", "eop", "ltp"] * 4)
+    assert sorted(embedded_role(_Run(r.resolved)) for r in exp.runs) == sorted(["Embedded", "EOP", "LTP"] * 4)
 
 
 def test_quickstart_is_the_readme_job():

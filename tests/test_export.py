@@ -5,7 +5,6 @@ published NanoTrack ONNX pair."""
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
@@ -15,6 +14,7 @@ torch = pytest.importorskip("torch")
 ort = pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx", reason="torch.onnx.export needs the onnx package (pip install onnx)")
 
+from mata_eval.cli import build_parser
 from mata_eval.deploy import export as E  # noqa: E402
 from mata_eval_plugins.trackers import vit  # noqa: E402
 
@@ -112,8 +112,7 @@ def test_parity_failure_is_loud_and_leaves_no_file(tmp_path):
 
 
 def test_nanotrack_random_weights_through_the_cli(tmp_path, capsys):
-    parser = argparse.ArgumentParser()
-    E.add_cli(parser.add_subparsers())
+    parser = build_parser()
     args = parser.parse_args(["export", "nanotrack", "--random-weights", "--seed", "5", "--out", str(tmp_path)])
     assert args.func(args) == 0
     printed = capsys.readouterr().out

@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from mata_eval.cli import build_parser
 from mata_eval.core.errors import ConfigError
 from mata_eval.data.occlusion import (ATTRIBUTE, SHAPES, OcclusionParams, augment_sequence, load_occlusion,
                                  occlusion_seed, plan_occlusions, write_augmented)
@@ -166,14 +167,11 @@ def test_write_augmented_copy_reads_back_through_the_uav123_loader(tmp_path):
 
 
 def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
-    import argparse
-
-    from mata_eval.data import occlusion
+    
     from mata_eval.data import synth
 
     synth.write_suite(tmp_path / "syn", specs=synth.suite_specs(1, 8, 96, 64), jobs=1)
-    parser = argparse.ArgumentParser()
-    occlusion.add_cli(parser.add_subparsers())
+    parser = build_parser()
     args = parser.parse_args(["augment", str(tmp_path / "out"), "--dataset", "folder_that_does_not_exist"])
     assert args.func(args) == 2 and "unknown dataset" in capsys.readouterr().out
     args = parser.parse_args(["augment", str(tmp_path / "out"), "--dataset", "uav123", "--root", str(tmp_path / "syn"),

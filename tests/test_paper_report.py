@@ -14,7 +14,8 @@ import pytest
 from mata_eval import cli
 from mata_eval.run import results
 from mata_eval.score.evaluate import evaluate_run
-from mata_eval.report.paper import (PlacementError, build_table, load_runs, render_paper_table, to_latex)
+from mata_eval.report.paper import PlacementError, build_table, load_runs
+from mata_eval.report.tables import render, to_latex
 from mata_eval.core.sequence import Sequence
 
 N = 20  # frames per sequence; 30 fps -> 2/3 s of camera time
@@ -75,7 +76,7 @@ def protocol_runs(tmp_path):
 def test_protocols_table_places_runs_from_manifests(protocol_runs):
     dirs, expect = protocol_runs
     t = build_table("protocols", load_runs(dirs))
-    rows = md_rows(render_paper_table(t, "markdown"))
+    rows = md_rows(render(t, "markdown"))
     assert rows[0] == ["Protocol", "VOT", "MATA", "Synthetic SR", "Synthetic NT2F",
                        "Synthetic+occ SR", "Synthetic+occ NT2F"]
     body = rows[2:]
@@ -127,7 +128,7 @@ def test_challenges_table_per_group(tmp_path):
                     {"occ1": 4, "occ2": 8, "fast": 20, "plain": 20}, attrs=attrs)
     mata = make_run(tmp_path, "mata", config(mata=True, protocol=proto, occ=True),
                     {"occ1": 12, "occ2": 16, "fast": 10, "plain": 20}, attrs=attrs)
-    rows = md_rows(render_paper_table(build_table("challenges", load_runs([mata, base])), "markdown"))
+    rows = md_rows(render(build_table("challenges", load_runs([mata, base])), "markdown"))
     head = rows[0]
     assert head[:2] == ["VOT", "MATA"]
     assert "Occlusion (2) SR" in head and "High dynamic (2) NT2F" in head and "Distractor (0) SR" in head
@@ -149,16 +150,20 @@ def test_ablation_rows_marks_and_details(tmp_path):
         "7-no-threshold": config(mata=True, protocol=proto, estimator={**EKF, "gating": False}),
         "3-score": config(protocol=proto),
     }
-    confs["3-score"]["tracker"] = {"name": "kcf", "confidence": "window"}  # as mixformerv2 declares it
+    # the tracker plugin says whether a configuration uses the explainable score (mixformerv2 has
+    # the choice: `confidence: window` is the paper's PMF window score)
+    for c in confs.values():
+        c["tracker"] = {"name": "mixformerv2", "confidence": "mlp"}
+    confs["3-score"]["tracker"] = {"name": "mixformerv2", "confidence": "window"}
     dirs = [make_run(tmp_path, n, c, {"s": i + 3}) for i, (n, c) in enumerate(confs.items())]
-    rows = md_rows(render_paper_table(build_table("ablation", load_runs(dirs)), "markdown"))
+    rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
     assert rows[0] == ["Configuration", "Ego motion", "EKF", "Score", "Details", "PR", "SR", "MSR", "NT2F"]
     body = {r[0]: r for r in rows[2:]}
     assert [r[0] for r in rows[2:]] == ["1", "2", "3", "4", "5", "7"]
-    assert body["1"][1:5] == ["✗", "✗", "-", "KCF (baseline)"]
-    assert body["2"][1:5] == ["✓", "✓", "-", "MATA"]
-    assert body["3"][1:5] == ["✗", "✗", "✓", "KCF (baseline), explainable score"]
-    assert body["4"][1:5] == ["✗", "✓", "-", "no camera compensation"]
+    assert body["1"][1:5] == ["✗", "✗", "✗", "MixFormerV2 (baseline)"]
+    assert body["2"][1:5] == ["✓", "✓", "✗", "MATA"]
+    assert body["3"][1:5] == ["✗", "✗", "✓", "MixFormerV2 (baseline), explainable score"]
+    assert body["4"][1:5] == ["✗", "✓", "✗", "no camera compensation"]
     assert body["5"][4] == "constant acceleration model"
     assert body["7"][4] == "no threshold on measurements"
     # values: hits = index + 3 in the given order; MSR of a hit/miss sequence = hits/N * 20/21
@@ -176,7 +181,7 @@ def test_embedded_table_differences_and_frequencies(tmp_path):
                              {"s": hp}, every=2))
         runs.append(make_run(tmp_path, f"ltp-{tag}", config(mata=mata), {"s": hl}, every=1))
     t = build_table("embedded", load_runs(runs))
-    rows = md_rows(render_paper_table(t, "markdown"))
+    rows = md_rows(render(t, "markdown"))
     assert rows[0][:2] == ["VOT", "MATA"] and rows[0][2:5] == ["Embedded SR", "Embedded NT2F", "Embedded Freq."]
     # tracker starts: every 3rd frame of 20 -> 7 starts in 2/3 s = 10.5 Hz; every 2nd -> 15 Hz
     assert rows[2] == ["KCF", "✗", "50.0", "50.0", "10.5", "10.0", "10.0", "15.0", "40.0", "40.0", "30.0"]
@@ -190,7 +195,7 @@ def test_embedded_table_differences_and_frequencies(tmp_path):
 
 def test_embedded_table_rejects_other_protocols(tmp_path):
     d = make_run(tmp_path, "dsp", config(protocol={"name": "dsp", "n": 3}), {"s": 3})
-    with pytest.raises(PlacementError, match="vot_rt"):
+    with pytest.raises(PlacementError, match="paper_role is one of Embedded, EOP, LTP"):
         build_table("embedded", load_runs([d]))
 
 
@@ -277,7 +282,7 @@ def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):
     dirs = [make_run(tmp_path, "v-mata", config("vittrack", mata=True, protocol=proto), {"s": 8}),
             make_run(tmp_path, "k-base", config("kcf", protocol=proto), {"s": 4}),
             make_run(tmp_path, "k-comp", config("kcf", mata=True, protocol=proto, estimator=comp), {"s": 6})]
-    rows = md_rows(render_paper_table(build_table("ablation", load_runs(dirs)), "markdown"))
+    rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
     assert rows[0][:2] == ["VOT", "Configuration"]
     assert [(r[0], r[5]) for r in rows[2:]] == [
         ("VitTrack", "MATA"), ("KCF", "KCF (baseline)"),
@@ -291,4 +296,4 @@ def test_failed_sequences_are_noted_under_the_table(tmp_path):
     evaluate_run(d, [Sequence("s1", np.tile(GT, (N, 1))), Sequence("s2", np.tile(GT, (N, 1)))])
     t = build_table("protocols", load_runs([d]))
     assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (1 sequences)"]
-    assert "- a: 1 failed" in render_paper_table(t, "markdown")
+    assert "- a: 1 failed" in render(t, "markdown")

@@ -4,7 +4,6 @@ hand-computed timeline; warm-up calls are not timed; the machine is described.""
 
 from __future__ import annotations
 
-import argparse
 import csv
 import textwrap
 import time
@@ -13,9 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from mata_eval.cli import build_parser
 from mata_eval.run.config import load_experiment
 from mata_eval.params import param
-from mata_eval.deploy.profile import add_cli, back_and_forth, describe_machine, profile_run, time_blocks
+from mata_eval.deploy.profile import back_and_forth, describe_machine, profile_run, time_blocks
 from mata_eval.core.registry import PluginEntry, Registry, load_registry
 from mata_eval.run.runner import run_experiment
 from mata_eval.core.sequence import Sequence
@@ -212,8 +212,7 @@ def test_cli_writes_the_profile_and_asks_for_a_run(tmp_path, capsys, monkeypatch
 
     real_load = config.load_experiment
     monkeypatch.setattr(config, "load_experiment", lambda p, registry=None: real_load(p, _registry()))
-    parser = argparse.ArgumentParser()
-    add_cli(parser.add_subparsers())
+    parser = build_parser()
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "p.yaml"), "--frames", "5", "--warmup", "1"])
     assert args.func(args) == 2 and "choose one with --run (runs: a, b)" in capsys.readouterr().err
     args = parser.parse_args(["profile", str(path), "--run", "b", "--out", str(tmp_path / "p.yaml"),

@@ -3,16 +3,16 @@ scheduler; the timeline plot and its CLI."""
 
 from __future__ import annotations
 
-import argparse
 
 import cv2
 import numpy as np
 import pytest
 
+from mata_eval.cli import build_parser
 from mata_eval.params import build_params
 from mata_eval.core.registry import load_registry
 from mata_eval.run.scheduler import FixedLatency, WallTimeLatency, run_sequence
-from mata_eval.report.timeline import add_cli, calls_from_trace, held_segments, plot_timeline
+from mata_eval.report.timeline import calls_from_trace, held_segments, plot_timeline
 from mata_eval_plugins.protocols.dsp import DSP
 from mata_eval_plugins.protocols.eop import EOP
 from mata_eval_plugins.protocols.ltp import LTP
@@ -93,8 +93,7 @@ def test_timeline_plot_and_cli(tmp_path):
     (tmp_path / "seqA.trace.csv").write_text(run.trace_csv())
     out = plot_timeline(run.trace_rows(), tmp_path / "direct.png", frames=(0, 20))
     assert cv2.imread(str(out)) is not None
-    parser = argparse.ArgumentParser()
-    add_cli(parser.add_subparsers())
+    parser = build_parser()
     args = parser.parse_args(["timeline", str(tmp_path), "seqA", "--frames", "4:30"])
     assert args.func(args) == 0
     img = cv2.imread(str(tmp_path / "seqA.timeline.png"))

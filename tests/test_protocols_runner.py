@@ -4,7 +4,6 @@ draws a sequence of the run folder."""
 
 from __future__ import annotations
 
-import argparse
 import csv
 import textwrap
 from dataclasses import dataclass
@@ -12,12 +11,12 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from mata_eval.cli import build_parser
 from mata_eval.run.config import load_experiment
 from mata_eval.params import param
 from mata_eval.core.registry import PluginEntry, Registry, load_registry
 from mata_eval.run.runner import run_experiment
 from mata_eval.core.sequence import Sequence
-from mata_eval.report.timeline import add_cli
 from mata_eval.types import Box, Estimate, TrackerOutput
 
 
@@ -127,7 +126,6 @@ def test_baseline_and_mata_under_ltp_and_eop(tmp_path):
         trace = list(csv.DictReader(f))
     assert [int(r["frame"]) for r in trace if r["block"] == "tracker" and r["event"] == "start"] == [0, 3, 6, 9]
 
-    parser = argparse.ArgumentParser()
-    add_cli(parser.add_subparsers())
+    parser = build_parser()
     args = parser.parse_args(["timeline", str(out / "mata-eop10"), "seqA", "--out", str(tmp_path / "t.png")])
     assert args.func(args) == 0 and (tmp_path / "t.png").stat().st_size > 1000

@@ -25,23 +25,23 @@ hookimpl = pluggy.HookimplMarker(PROJECT)
 class PluginSpecs:
     @hookspec
     def mata_eval_trackers(self) -> list[type]:
-        """Tracker classes (block A): see :class:`mata_eval.interfaces.Tracker`."""
+        """Tracker classes (block A): see :class:`mata_eval.core.interfaces.Tracker`."""
 
     @hookspec
     def mata_eval_egomotion(self) -> list[type]:
-        """Ego-motion classes (block B): see :class:`mata_eval.interfaces.EgoMotion`."""
+        """Ego-motion classes (block B): see :class:`mata_eval.core.interfaces.EgoMotion`."""
 
     @hookspec
     def mata_eval_estimators(self) -> list[type]:
-        """Estimator classes (block C): see :class:`mata_eval.interfaces.Estimator`."""
+        """Estimator classes (block C): see :class:`mata_eval.core.interfaces.Estimator`."""
 
     @hookspec
     def mata_eval_protocols(self) -> list[type]:
-        """Evaluation protocol classes: presets of :mod:`mata_eval.scheduler`."""
+        """Evaluation protocol classes: presets of :mod:`mata_eval.run.scheduler`."""
 
     @hookspec
     def mata_eval_datasets(self) -> list[type]:
-        """Dataset classes: see :class:`mata_eval.interfaces.Dataset`."""
+        """Dataset classes: see :class:`mata_eval.core.interfaces.Dataset`."""
 
 
 KINDS = {

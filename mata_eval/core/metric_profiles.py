@@ -34,7 +34,7 @@ InvalidAction = Literal["exclude", "fail", "hit"]
 
 @dataclass(frozen=True)
 class Profile:
-    """The policies that make toolkits disagree on the same results (EVAL_TOOLKITS.md).
+    """The policies that make toolkits disagree on the same results (``docs/metrics.md``).
 
     Validity of a ground-truth row (``*_valid``): ``finite`` = no NaN; ``wh`` = finite with
     w > 0 and h > 0; ``xywh`` = all four values > 0 (a box touching the left/top border is

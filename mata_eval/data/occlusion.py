@@ -9,7 +9,7 @@ polygon or stripe) scaled to the object size, its colour and alpha. The occluder
 alpha-blended onto the frame; the ground truth is left unchanged. Every method compared under
 the same seed sees the same occlusions.
 
-:func:`augment_sequence` returns a new :class:`~mata_eval.sequence.Sequence` whose loader
+:func:`augment_sequence` returns a new :class:`~mata_eval.core.sequence.Sequence` whose loader
 composites the occluders when a frame is read (no frame is written: UAV123 is 13 GB), with the
 per-frame fraction of the ground-truth box covered in ``meta["occlusion"]`` and the events in
 ``meta["occlusion_events"]``; :func:`write_augmented` writes an augmented copy in the UAV123
@@ -18,7 +18,6 @@ layout, with the per-frame metadata and a contact sheet per sequence.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import json
@@ -493,68 +492,3 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
     (out / "augment.json").write_text(json.dumps({"seed": seed, "occlusion": dataclasses.asdict(params),
                                                  "sequences": written}, indent=1))
     return written
-
-
-# --- CLI ----------------------------------------------------------------------------------------------
-
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser("augment", help="write an occlusion-augmented copy of a dataset (paper 3.2)",
-                              description="Occlusion augmentation (paper section 3.2): writes OUT in the UAV123 "
-                                          "layout with per-frame occlusion metadata and contact sheets. To "
-                                          "augment at load time instead, add an `occlusion:` block to the experiment.")
-    p.add_argument("out", help="output dataset root")
-    p.add_argument("--dataset", default="synthetic",
-                   help="dataset plugin name (default synthetic: the cached default suite, or the suite "
-                        "written by `mata-eval synth` at --root)")
-    p.add_argument("--root", help="the dataset's root folder (its `root` parameter)")
-    p.add_argument("--sequences", nargs="*", help="only these sequences")
-    p.add_argument("--seed", type=int, default=0, help="experiment seed (default 0)")
-    p.add_argument("--n-events", type=int, default=None, help="events per sequence")
-    p.add_argument("--shapes", nargs="*", choices=SHAPES, help="shape families, cycled over the events")
-    p.add_argument("--duration", type=float, default=None, help="seconds per event")
-    p.add_argument("--config", help="YAML file holding an occlusion block (the experiment's `occlusion:` keys)")
-    p.add_argument("--quality", type=int, default=95, help="JPEG quality (default 95)")
-    p.add_argument("--force", action="store_true", help="write into OUT even if it is not empty")
-    p.set_defaults(func=_cmd_augment)
-
-
-def _cmd_augment(args: argparse.Namespace) -> int:
-    from ..core.errors import ConfigError
-    from ..core.params import build_params
-    from ..core.registry import load_registry
-
-    values: dict = {}
-    if args.config:
-        import yaml
-
-        data = yaml.safe_load(Path(args.config).read_text()) or {}
-        values = dict(data.get("occlusion", data) or {})
-    if args.n_events is not None:
-        values["n_events"] = args.n_events
-    if args.shapes:
-        values["shapes"] = list(args.shapes)
-    if args.duration is not None:
-        values["duration"] = args.duration
-    try:
-        params = build_params(OcclusionParams, values, ("occlusion",),
-                              (lambda kp: str(args.config)) if args.config else None)
-        if args.root and args.dataset == "synthetic" and (Path(args.root) / "synth.json").is_file():
-            from .datasets.synthetic import read_suite  # a suite written by `mata-eval synth`, as it is
-
-            sequences = read_suite(args.root, args.sequences)
-        else:
-            entry = load_registry().get("dataset", args.dataset)
-            block = {k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}
-            dataset = entry.cls(build_params(entry.cls.Params, block, ("dataset",)))
-            sequences = dataset.sequences()
-    except (ConfigError, KeyError, ValueError) as e:
-        print(f"mata-eval augment: {e}")
-        return 2
-    try:
-        names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True,
-                                overwrite=args.force)
-    except FileExistsError as e:
-        print(f"mata-eval augment: {e}")
-        return 2
-    print(f"wrote {len(names)} augmented sequences to {args.out} (contact sheets in {Path(args.out) / 'contact_sheets'})")
-    return 0

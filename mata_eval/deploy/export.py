@@ -21,7 +21,6 @@ Heavy packages (torch, onnx, onnxruntime) are imported inside the functions.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -447,57 +446,3 @@ def export_ostrack(out_dir: str | Path, checkpoint: str | Path | None = None, *,
     _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
                              "random_weights_seed": None if checkpoint else seed})
     return result
-
-
-# --- CLI -----------------------------------------------------------------------------------------
-
-def cmd_export(args: argparse.Namespace) -> int:
-    import sys
-
-    if args.checkpoint is None and not args.random_weights:
-        print(f"error: mata-eval export {args.model}: give --checkpoint PATH (the official weights) or "
-              "--random-weights (pipeline tests only)", file=sys.stderr)
-        return 2
-    common = dict(random_weights=args.random_weights, seed=args.seed, trust_pickle=args.trust_pickle,
-                  opset=args.opset, atol=args.atol, rtol=args.rtol)
-    try:
-        if args.model == "nanotrack":
-            result = export_nanotrack(args.out, args.checkpoint, **common)
-        elif args.model == "mixformerv2":
-            forms = {"both": ("full", "two_graph"), "full": ("full",), "two-graph": ("two_graph",)}[args.form]
-            result = export_mixformerv2(args.out, args.checkpoint, variant=args.variant, forms=forms, **common)
-        else:
-            result = export_ostrack(args.out, args.checkpoint, **common)
-    except ParityError as exc:
-        print(f"error: parity check failed: {exc}", file=sys.stderr)
-        return 1
-    except (FileNotFoundError, ValueError, RuntimeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    for g in result.graphs:
-        print(f"{g.role:9s} {g.path}  inputs {', '.join(g.inputs[:3])}{', ...' if len(g.inputs) > 3 else ''}"
-              f"  max |onnxruntime - torch| = {g.max_abs_error:.2e}")
-    print(f"manifest  {result.out_dir / MANIFEST}")
-    return 0
-
-
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser(
-        "export", help="export a PyTorch tracker to ONNX (parity with torch checked)",
-        description="Export NanoTrack v2 (.pth), MixFormerV2 or OSTrack to ONNX (opset 17, TorchScript exporter). "
-                    "ONNX Runtime's outputs are compared with torch's on random crops; the export fails above "
-                    "the tolerance. Writes export.json beside the graphs.")
-    p.add_argument("model", choices=("nanotrack", "mixformerv2", "ostrack"))
-    p.add_argument("--checkpoint", help="weights: nanotrackv2.pth, mixformerv2_small.pth.tar, OSTrack_ep0300.pth.tar")
-    p.add_argument("--random-weights", action="store_true", help="seeded random weights (pipeline tests and timing only)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random weights and of the parity inputs")
-    p.add_argument("--trust-pickle", action="store_true",
-                   help="allow full unpickling of a trusted legacy checkpoint (default: weights only)")
-    p.add_argument("--variant", choices=("S", "B"), default="S", help="MixFormerV2 variant (default: S)")
-    p.add_argument("--form", choices=("both", "full", "two-graph"), default="both",
-                   help="MixFormerV2: one graph, template encoder + search step, or both (default)")
-    p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--opset", type=int, default=DEFAULT_OPSET)
-    p.add_argument("--atol", type=float, default=DEFAULT_ATOL, help="parity: absolute tolerance (default %(default)g)")
-    p.add_argument("--rtol", type=float, default=DEFAULT_RTOL, help="parity: relative tolerance (default %(default)g)")
-    p.set_defaults(func=cmd_export)

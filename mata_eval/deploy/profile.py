@@ -1,6 +1,6 @@
 """``mata-eval profile``: time each block of an experiment run (tracker with its backend,
 ego-motion, estimator) on the machine it runs on, and write a timing profile
-(:mod:`mata_eval.timing_profile`) that the ``eop`` protocol reads instead of fixed rates and
+(:mod:`mata_eval.run.timing_profile`) that the ``eop`` protocol reads instead of fixed rates and
 latencies (``tracker_hz: profile``, ``tracker_latency: profile``, ``latency_profile: FILE``).
 
 Method: the blocks are built from the experiment file exactly as a run builds them, and fed real
@@ -17,7 +17,6 @@ share cores on board is not modelled; see docs/decisions/deploy.md).
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import shutil
@@ -30,7 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..run.timing_profile import TimingProfile, profile_from_samples, write_profile
+from ..run.timing_profile import TimingProfile, profile_from_samples
 from ..core.types import Stamped
 
 DEFAULT_FRAMES = 200
@@ -199,7 +198,7 @@ def time_blocks(sequence: Any, tracker: Any, egomotion: Any = None, estimator: A
 def profile_run(spec: Any, *, frames: int = DEFAULT_FRAMES, warmup: int = DEFAULT_WARMUP,
                 sequence: str | None = None, clock: Callable[[], float] = time.perf_counter,
                 experiment: str | None = None) -> TimingProfile:
-    """Time the blocks of one run (a :class:`mata_eval.config.RunSpec`) on one sequence of its
+    """Time the blocks of one run (a :class:`mata_eval.run.config.RunSpec`) on one sequence of its
     dataset (the first, or the one named) and build the timing profile."""
     from ..run.runner import load_sequences
 
@@ -232,67 +231,3 @@ def summary_table(profile: TimingProfile) -> str:
         rows.append(f"{name:<10} {1e3 * b.mean_s:8.2f} {1e3 * p['50']:8.2f} {1e3 * p['90']:8.2f} "
                     f"{1e3 * p['99']:8.2f} {b.rate_hz:8.1f} {n:5d}")
     return "\n".join(rows)
-
-
-# --- CLI ----------------------------------------------------------------------------------------
-
-def cmd_profile(args: argparse.Namespace) -> int:
-    from ..run.config import load_experiment
-
-    exp = load_experiment(args.experiment)
-    if args.run is None:
-        if len(exp.runs) > 1:
-            names = ", ".join(r.name for r in exp.runs)
-            print(f"error: {exp.path} has {len(exp.runs)} runs; choose one with --run (runs: {names})", file=sys.stderr)
-            return 2
-        spec = exp.runs[0]
-    else:
-        matches = [r for r in exp.runs if r.name == args.run]
-        if not matches:
-            print(f"error: {exp.path}: no run {args.run!r} (runs: {', '.join(r.name for r in exp.runs)})", file=sys.stderr)
-            return 2
-        spec = matches[0]
-    if args.threads:
-        _set_threads(args.threads)
-    try:
-        profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
-                              experiment=str(exp.path))
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    path = write_profile(profile, args.out)
-    print(f"machine: {profile.machine.get('cpu')}" + (f"; GPU {', '.join(profile.machine['gpu'])}" if profile.machine.get("gpu") else "")
-          + (f"; power mode {profile.machine['power_mode']}" if profile.machine.get("power_mode") else ""))
-    print(f"run {spec.name}, sequence {profile.machine['run']['sequence']}: {args.frames} timed calls per block "
-          f"after {args.warmup} warm-up calls")
-    print(summary_table(profile))
-    print(f"timing profile: {path}  (eop: latency_profile: {path}, tracker_hz: profile, tracker_latency: profile)")
-    return 0
-
-
-def _set_threads(n: int) -> None:
-    """Cap the CPU threads of the libraries the blocks use (before they are built)."""
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = str(n)
-    import cv2
-
-    cv2.setNumThreads(n)
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        torch.set_num_threads(n)
-
-
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser(
-        "profile", help="time each block of a run on this machine and write a timing profile for eop",
-        description="Build the blocks of one run of an experiment file, feed them real frames of its dataset "
-                    "(decoded beforehand), and record per-block latencies after a warm-up. Writes a timing "
-                    "profile (JSON, or YAML for .yaml) that the eop protocol reads with latency_profile.")
-    p.add_argument("experiment", help="experiment YAML file")
-    p.add_argument("--run", help="which run of the matrix (required when the file has several)")
-    p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
-    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
-    p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
-    p.add_argument("--threads", type=int, default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
-    p.add_argument("--out", required=True, help="timing profile file to write (.json, .yaml)")
-    p.set_defaults(func=cmd_profile)

@@ -7,13 +7,11 @@ its publish, skipped turns, and the held (zero-order-hold) output with the frame
 
 from __future__ import annotations
 
-import argparse
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
-from ..run.scheduler import BLOCKS, LANES, TraceEvent, read_trace_csv
+from ..run.scheduler import BLOCKS, LANES, TraceEvent
 
 COLORS = {"camera": "#7f7f7f", "egomotion": "#2ca02c", "tracker": "#1f77b4", "estimator": "#d62728"}
 
@@ -179,52 +177,3 @@ def _draw_panel(ax, rows: list[TraceEvent], a: int, b: int, fps: float) -> None:
     ax.set_yticklabels([f"held {out_block}" if lane == "output" else lane for lane in lanes])
     ax.set_xlim(a - 0.2, b + 0.2)
     ax.set_ylim(-0.7, len(lanes) - 0.3)
-
-
-def parse_frames(text: str) -> tuple[int, int]:
-    """``"A:B"`` -> ``(A, B)``."""
-    try:
-        a, b = (int(v) for v in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--frames: expected A:B (two integers), got {text!r}") from None
-    if not 0 <= a < b:
-        raise argparse.ArgumentTypeError(f"--frames: expected 0 <= A < B, got {text!r}")
-    return a, b
-
-
-def cmd_timeline(args: argparse.Namespace) -> int:
-    run_dir = Path(args.run_dir)
-    trace_path = run_dir / f"{args.seq}.trace.csv"
-    if not trace_path.is_file():
-        have = sorted(p.name[: -len(".trace.csv")] for p in run_dir.glob("*.trace.csv"))
-        print(f"mata-eval timeline: no trace {trace_path}; sequences with a trace: "
-              f"{', '.join(have) or '(none)'}", file=sys.stderr)
-        return 2
-    traces = {}
-    for d in [run_dir] + [Path(c) for c in (args.compare or [])]:
-        path = d / f"{args.seq}.trace.csv"
-        try:
-            traces[d.name] = read_trace_csv(path.read_text())
-        except OSError as exc:
-            print(f"mata-eval timeline: cannot read {path}: {exc.strerror or exc}", file=sys.stderr)
-            return 2
-        except ValueError as exc:
-            print(f"mata-eval timeline: {path}: {exc}", file=sys.stderr)
-            return 2
-    out = Path(args.out) if args.out else run_dir / f"{args.seq}.timeline.png"
-    plot_timeline(traces, out, frames=args.frames, title=args.seq)
-    print(out)
-    return 0
-
-
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser("timeline", help="draw a sequence's scheduler trace (blocks, starts, publishes, held output)",
-                              description=__doc__)
-    p.add_argument("run_dir", metavar="RUN_DIR", help="run folder holding <SEQ>.trace.csv")
-    p.add_argument("seq", metavar="SEQ", help="sequence name")
-    p.add_argument("--out", help="image file to write (default: RUN_DIR/SEQ.timeline.png)")
-    p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
-                   help="frame range to draw, half-open (default: all; long sequences read best with ~60 frames)")
-    p.add_argument("--compare", nargs="+", metavar="RUN_DIR",
-                   help="more run folders (e.g. other protocols) drawn as panels below, like the paper's figure")
-    p.set_defaults(func=cmd_timeline)

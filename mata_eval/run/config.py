@@ -11,7 +11,7 @@ Format (see README "Experiment files")::
     seed: 0
     output: results/quickstart
     dataset: {name: synthetic}
-    occlusion: null                  # or a block of mata_eval.occlusion.OcclusionParams
+    occlusion: null                  # or a block of mata_eval.data.occlusion.OcclusionParams
     tracker: {name: kcf}
     egomotion: {name: grid_lk}       # or null
     estimator: {name: homography_ekf}  # or null (baseline: the tracker's output is held)

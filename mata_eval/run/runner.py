@@ -211,15 +211,3 @@ def run_experiment(
         if o.status == "failed":
             log(f"FAILED {o.run}/{o.sequence}: {o.reason}")
     return outcomes
-
-
-def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[Any]:
-    """Score every run folder (writes ``scores.json`` in each) and return the run scores."""
-    from ..score.evaluate import evaluate_run
-
-    scores = []
-    for spec in exp.runs:
-        if only and spec.name not in only:
-            continue
-        scores.append(evaluate_run(run_dir(exp, spec), load_sequences(spec), spec.metrics_profile))
-    return scores

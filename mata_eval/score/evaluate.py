@@ -14,21 +14,20 @@ Layouts (``detect_layout`` picks one; ``layout=`` overrides):
 
 from __future__ import annotations
 
-import argparse
 import csv
 import dataclasses
 import json
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence as Seq
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from ..core.sequence import Sequence
 from ..run import results
+from ..run.config import Experiment
 from . import metrics
 from .metrics import Aggregate, BlockFrequency, SequenceScores
-from ..core.sequence import Sequence
 
 SCORES = "scores.json"
 LAYOUTS = ("mata", "pysot", "got10k", "pytracking")
@@ -313,81 +312,47 @@ def load_scores(run_dir: Path) -> RunScores:
     return RunScores.from_dict(data, source=str(path))
 
 
-# --- CLI -------------------------------------------------------------------------------------
+# --- run folders of an experiment ---------------------------------------------------------
 
 
-def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list[Sequence]:
-    """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
-    from ..core.params import build_params
-    from ..core.registry import load_registry
-
-    cls = load_registry().get("dataset", name).cls
-    values = dict(extra or {})
-    if root is not None:
-        values["root"] = root
-    return list(cls(build_params(cls.Params, values)).sequences())
+class ScoresUnavailable(RuntimeError):
+    """A run folder has no scores.json and cannot be evaluated from here."""
 
 
-def _parse_sets(items: Seq[str] | None) -> dict[str, Any]:
-    out = {}
-    for item in items or ():
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        try:
-            import yaml
+def scores_for(run_dir: Path) -> RunScores:
+    """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
+    experiment file can still be loaded; otherwise :class:`ScoresUnavailable` says what to do."""
+    d = Path(run_dir)
+    if d.is_file() or (d / SCORES).is_file():
+        return load_scores(d)
+    manifest = results.read_manifest(d)
+    hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
+    if manifest is None:
+        raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); {hint}")
+    exp_file = manifest.get("experiment_file")
+    if not exp_file or not Path(exp_file).is_file():
+        raise ScoresUnavailable(f"{d}: no {SCORES}, and the experiment file {exp_file!r} named in its "
+                                f"manifest cannot be read; {hint}")
+    from ..run.config import load_experiment
+    from ..run.runner import load_sequences
 
-            out[key] = yaml.safe_load(value)
-        except Exception:
-            out[key] = value
-    return out
-
-
-def cmd_eval(args: argparse.Namespace) -> int:
-    from ..report.tables import render_table
-
-    try:
-        seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))
-        layout = args.layout
-        if layout == "mata" or (layout == "auto" and detect_layout(Path(args.results_dir)) == "mata"):
-            scores = evaluate_results(args.results_dir, seqs, args.profile, layout="mata")
-            if not args.no_save:
-                print(f"wrote {save_scores(args.results_dir, scores)}")
-        else:
-            scores = evaluate_results(args.results_dir, seqs, args.profile, layout=layout, name=args.name)
-    except (FileNotFoundError, ValueError, KeyError) as exc:
-        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
-        return 2
-    if args.output:
-        print(f"wrote {save_scores(Path(args.output), scores)}")
-    print(render_table([scores], "terminal"))
-    if args.challenges:
-        print(render_table([scores], "terminal", table="challenges"))
-    if scores.missing:
-        print(f"{len(scores.missing)} sequence(s) without results: {', '.join(scores.missing[:10])}"
-              + (" ..." if len(scores.missing) > 10 else ""))
-    if scores.meta.get("unmatched_results"):
-        un = scores.meta["unmatched_results"]
-        print(f"{len(un)} result file(s) match no sequence of {args.dataset}: {', '.join(un[:10])}"
-              + (" ..." if len(un) > 10 else ""))
-    return 0 if scores.sequences else 1
+    exp = load_experiment(exp_file)
+    spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
+    if spec is None:
+        raise ScoresUnavailable(f"{d}: no {SCORES}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
+    if spec.config_hash != manifest.get("config_hash"):
+        raise ScoresUnavailable(f"{d}: no {SCORES}, and {exp_file} now describes run {spec.name!r} differently "
+                                f"(config hash changed); {hint}")
+    return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
 
 
-def add_cli(subparsers) -> None:
-    p = subparsers.add_parser(
-        "eval", help="score a results folder (mata-eval run, pysot, got10k or pytracking layout)",
-        description="Score a results folder against a dataset's annotations (no images are read) and "
-                    "print the table. A mata-eval run folder gets its scores.json (re)written.")
-    p.add_argument("results_dir", metavar="RESULTS_DIR", help="folder with one result file per sequence")
-    p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
-    p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="another dataset parameter (repeatable)")
-    p.add_argument("--layout", choices=("auto",) + LAYOUTS, default="auto",
-                   help="results layout (default: detected)")
-    p.add_argument("--profile", choices=tuple(metrics.PROFILES), default="default",
-                   help="metric compatibility profile (default: %(default)s)")
-    p.add_argument("--name", help="run name shown in the table (default: the folder name)")
-    p.add_argument("--output", help="also write scores.json into this folder")
-    p.add_argument("--no-save", action="store_true", help="do not write scores.json into a mata run folder")
-    p.add_argument("--challenges", action="store_true", help="also print the per-challenge table")
-    p.set_defaults(func=cmd_eval)
+def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[RunScores]:
+    """Score every run folder (writes ``scores.json`` in each) and return the run scores."""
+    from ..run.runner import load_sequences, run_dir
+
+    scores = []
+    for spec in exp.runs:
+        if only and spec.name not in only:
+            continue
+        scores.append(evaluate_run(run_dir(exp, spec), load_sequences(spec), spec.metrics_profile))
+    return scores

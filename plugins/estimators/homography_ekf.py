@@ -10,7 +10,7 @@ seconds so velocities are px/s; Q entries are variance rates per second (Q = q d
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Any, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -65,6 +65,25 @@ class HomographyEKF:
     """Homography EKF (MATA block C): box corners carried by the camera homography, gated updates."""
 
     name = "homography_ekf"
+
+    @classmethod
+    def ablation(cls, params: Mapping[str, Any], egomotion: bool) -> tuple[bool, bool, str]:
+        """Reports (paper Table 3): (ego-motion used, EKF used, what differs from the paper's
+        configuration) of a resolved parameter block; ``egomotion``: the run has a block B."""
+        default = cls.Params()
+        p = {f: params.get(f, getattr(default, f)) for f in ("camera", "model", "gating", "delay", "tau_ewma")}
+        ego = egomotion and p["camera"]
+        parts = []
+        if not ego:
+            parts.append("no camera compensation")
+        parts.append({"ca": "constant acceleration model", "cj": "constant jerk model"}.get(p["model"], ""))
+        if not p["gating"]:
+            parts.append("no threshold on measurements")
+        if p["delay"] == "compensate":
+            parts.append("delay compensation")
+        if p["gating"] and p["tau_ewma"] != default.tau_ewma:
+            parts.append(f"confidence gate tau_ewma = {p['tau_ewma']:g}")
+        return ego, True, ", ".join(x for x in parts if x) or "MATA"
 
     @dataclass(frozen=True)
     class Params:

@@ -14,6 +14,7 @@ class ZeroOrderHold:
     """Zero-order hold: hold the tracker's newest box (baseline for block C)."""
 
     name = "zoh"
+    baseline = True  # reports: a run with this estimator is a baseline, not MATA
 
     @dataclass(frozen=True)
     class Params:

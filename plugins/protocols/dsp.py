@@ -4,6 +4,7 @@ every block runs on each kept frame without delay, and only kept frames are scor
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
@@ -14,6 +15,12 @@ class DSP:
     """Down-sampling protocol: keep every n-th frame, process each kept frame without delay."""
 
     name = "dsp"
+
+    @classmethod
+    def table_label(cls, params: Mapping[str, Any]) -> tuple[str, tuple]:
+        """Reports: display label and sort key (paper Table 1 order: after LTP and EOP)."""
+        n = params.get("n", cls.Params().n)
+        return f"DSP (n = {n})", (3, float(n))
 
     @dataclass(frozen=True)
     class Params:

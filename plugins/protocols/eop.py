@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Mapping
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
@@ -51,6 +51,20 @@ class EOP:
     """Embedded-oriented protocol: per-block rates and output latencies (optionally measured)."""
 
     name = "eop"
+    paper_role = "EOP"  # reports: the EOP columns of paper Table 4
+
+    @classmethod
+    def table_label(cls, params: Mapping[str, Any]) -> tuple[str, tuple]:
+        """Reports: display label and sort key (paper Table 1 order: after LTP, from the fastest
+        tracker rate down, the profiled rate last)."""
+        default = cls.Params()
+        hz = params.get("tracker_hz", default.tracker_hz)
+        if hz is None:
+            return "EOP @ camera rate", (1, -math.inf)
+        if hz == "profile":
+            profiled = params.get("tracker_latency", default.tracker_latency) == "profile"
+            return "EOP @ profile rate" + (" (profile latencies)" if profiled else ""), (2, 0.0)
+        return f"EOP @ {float(hz):g} Hz", (1, -float(hz))
 
     @dataclass(frozen=True)
     class Params:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 from mata_eval.hooks import hookimpl
 from mata_eval.run.scheduler import Timing, every_frame
@@ -12,6 +13,12 @@ class LTP:
     """Long-term protocol: every block processes every frame with no delay (offline evaluation)."""
 
     name = "ltp"
+    paper_role = "LTP"  # reports: the LTP columns of paper Table 4
+
+    @staticmethod
+    def table_label(params: Mapping[str, Any]) -> tuple[str, tuple]:
+        """Reports: display label and sort key (paper Table 1 order: LTP first)."""
+        return "LTP", (0, 0.0)
 
     @dataclass(frozen=True)
     class Params:

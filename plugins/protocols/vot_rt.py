@@ -8,6 +8,7 @@ timed waits for the next frame to be seen: see docs/decisions/protocols.md)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
@@ -18,6 +19,13 @@ class VotRealTime:
     """VOT real-time: the tracker's latency is its measured wall time on this machine."""
 
     name = "vot_rt"
+    paper_role = "Embedded"  # reports: the measured wall time is paper Table 4's embedded reference
+
+    @classmethod
+    def table_label(cls, params: Mapping[str, Any]) -> tuple[str, tuple]:
+        """Reports: display label and sort key (paper Table 1 order: last)."""
+        scale = float(params.get("time_scale", cls.Params().time_scale))
+        return "VOT real-time" + ("" if scale == 1.0 else f" (x{scale:g})"), (4, scale)
 
     @dataclass(frozen=True)
     class Params:

@@ -113,6 +113,7 @@ class KCFTracker:
     """Scale-aware KCF with HOG-like + Lab features (weight-free, numpy/OpenCV); PSR-based confidence."""
 
     name = "kcf"
+    label = "KCF"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

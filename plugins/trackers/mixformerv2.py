@@ -26,7 +26,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
@@ -117,6 +117,13 @@ class MixFormerV2:
     """MixFormerV2 S/B (PyTorch): PMF window-score confidence, score-gated template update."""
 
     name = "mixformerv2"
+    label = "MixFormerV2"  # display name in reports
+
+    @staticmethod
+    def explainable_score(params: Mapping[str, Any]) -> bool:
+        """Reports (paper Table 3 "Score"): does this configuration use the explainable PMF
+        window score?"""
+        return params.get("confidence", MixFormerV2.Params().confidence) == "window"
 
     @dataclass(frozen=True)
     class Params:

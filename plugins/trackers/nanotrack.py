@@ -174,6 +174,7 @@ class NanoTrack:
     """NanoTrack v2 (SiamTrackers) on ONNX Runtime/TensorRT; prior-aware; 2-D window-score confidence."""
 
     name = "nanotrack"
+    label = "NanoTrack"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

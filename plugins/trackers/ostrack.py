@@ -53,6 +53,7 @@ class OSTrack:
     """OSTrack-256 with candidate elimination (PyTorch); fixed template, sigmoid peak confidence."""
 
     name = "ostrack"
+    label = "OSTrack"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

@@ -77,6 +77,7 @@ class VitTrack:
     """VitTrack (OpenCV zoo) on ONNX Runtime/TensorRT; prior-aware; 2-D window-score confidence."""
 
     name = "vittrack"
+    label = "VitTrack"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

@@ -29,6 +29,7 @@ class DTB70:
     """DTB70: 70 drone sequences (<seq>/img/, <seq>/groundtruth_rect.txt), 11 attributes."""
 
     name = "dtb70"
+    label = "DTB70"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

@@ -23,6 +23,7 @@ class FolderDataset:
     """Generic layout: <root>/<seq>/ with frames and groundtruth(_rect).txt (4 values or VOT polygons)."""
 
     name = "folder"
+    label = "Folder"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

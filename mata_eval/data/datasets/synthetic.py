@@ -2,7 +2,7 @@
 
 The suite is generated on first use into a cache folder keyed by its generation parameters
 (atomically: a crash never leaves a half suite that looks complete), then read through the
-official-layout loader :class:`mata_eval.datasets.uav123.UAV123`, exactly as a real UAV123 copy
+official-layout loader :class:`mata_eval.data.datasets.uav123.UAV123`, exactly as a real UAV123 copy
 would be. Each sequence's true inter-frame homographies are in ``meta["homographies"]``.
 """
 
@@ -30,6 +30,7 @@ class SyntheticDataset:
     """Synthetic UAV sequences with exact ego-motion (generated on first use, then cached)."""
 
     name = "synthetic"
+    label = "Synthetic"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

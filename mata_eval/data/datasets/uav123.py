@@ -158,6 +158,7 @@ class UAV123(_UAV123Layout):
     """UAV123 (123 aerial sequences, 30 fps) in the official layout, frame ranges from configSeqs."""
 
     name = "uav123"
+    label = "UAV123"  # display name in reports
     subset = "UAV123"
     fps = 30.0
 
@@ -166,6 +167,7 @@ class UAV123_10fps(_UAV123Layout):
     """UAV123 temporally down-sampled to 10 fps (data_seq/UAV123_10fps, anno/UAV123_10fps)."""
 
     name = "uav123_10fps"
+    label = "UAV123@10fps"  # display name in reports
     subset = "UAV123_10fps"
     frames_subset = "UAV123_10fps"
     fps = 10.0
@@ -175,6 +177,7 @@ class UAV20L(_UAV123Layout):
     """UAV20L: the 20 long-term UAV123 videos, whole (anno/UAV20L, frames in data_seq/UAV123), 30 fps."""
 
     name = "uav20l"
+    label = "UAV20L"  # display name in reports
     subset = "UAV20L"
     frames_subset = "UAV123"  # configSeqs' seqUAV20L points into data_seq/UAV123
     fps = 30.0

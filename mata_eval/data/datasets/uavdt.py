@@ -31,6 +31,7 @@ class UAVDT:
     """UAVDT single-object tracking: 50 sequences (UAV-benchmark-S, anno/<seq>_gt.txt), 9 attributes."""
 
     name = "uavdt"
+    label = "UAVDT"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

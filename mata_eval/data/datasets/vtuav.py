@@ -37,6 +37,7 @@ class VTUAV:
     """VTUAV test split, visible part (<split>/<seq>/rgb/, rgb.txt), ground truth every 10th frame."""
 
     name = "vtuav"
+    label = "VTUAV"  # display name in reports
 
     @dataclass(frozen=True)
     class Params:

@@ -1,0 +1,126 @@
+"""The run tables of ``mata-eval run`` and ``mata-eval report``, one row per run:
+
+- ``overall``: SR, MSR, PR, P@20, NT2F, block frequencies, excluded frames, failed sequences
+  (the paper's Tables 1 and 3);
+- ``challenges``: SR and NT2F per challenge group (the paper's Table 2).
+
+Metrics print as percentages with one decimal (CSV keeps fractions at full precision); block
+frequencies as scheduled Hz (wall-clock Hz)."""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+from ..score.evaluate import RunScores
+from .tables import FORMATS, Table, hz, pct, render
+
+TABLES = ("overall", "challenges")
+METRIC_LABELS = (("sr", "SR"), ("msr", "MSR"), ("pr", "PR"), ("precision20", "P@20"), ("nt2f", "NT2F"))
+
+__all__ = ["FORMATS", "METRIC_LABELS", "TABLES", "challenges_table", "overall_table", "render_table"]
+
+
+def _num(v: float) -> str:
+    return "" if v is None or not math.isfinite(v) else f"{v:.6g}"
+
+
+def _blocks(runs: Sequence[RunScores]) -> list[str]:
+    seen: list[str] = []
+    for r in runs:
+        for b in r.frequencies:
+            if b not in seen:
+                seen.append(b)
+    return seen
+
+
+def _group_names(runs: Sequence[RunScores]) -> list[str]:
+    names: list[str] = []
+    for r in runs:
+        for g in r.summary.groups:
+            if g not in names:
+                names.append(g)
+    return names
+
+
+def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
+    """One row per run; in LaTeX the frequency columns are the scheduled rate only ("Freq.")."""
+    blocks = _blocks(runs)
+    metric_cols = [lab for _, lab in METRIC_LABELS]
+    freq_cols = [f"{b} Freq." if fmt == "latex" else f"{b} Hz" for b in blocks]
+    rows = []
+    for r in runs:
+        s = r.summary.overall
+        row = [r.name, str(s.n_sequences)] + [pct(getattr(s, m)) for m, _ in METRIC_LABELS]
+        for b in blocks:
+            f = r.frequencies.get(b)
+            if f is None:
+                row.append("-")
+            elif fmt == "latex":
+                row.append(hz(f.scheduled_hz))
+            else:  # scheduled rate (camera clock), wall-clock rate in parentheses
+                row.append(f"{hz(f.scheduled_hz)} ({hz(f.wall_hz)})")
+        row += [str(s.n_excluded), str(len(r.failures))]
+        rows.append(row)
+    # unlabelled groups: vertical rules between sequences, metrics, frequencies and counts in LaTeX
+    groups = [(g, n) for g, n in (("", 1), ("", len(metric_cols)), ("", len(blocks)), ("", 2)) if n]
+    return Table("overall", "", ["Run"], groups, ["Seqs"] + metric_cols + freq_cols + ["Excl. frames", "Failed"],
+                 rows, stub_align="l")
+
+
+def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
+    """SR and NT2F per challenge group; the number of sequences of each group in its header,
+    except in LaTeX (like the paper)."""
+    groups = _group_names(runs)
+    n = {g: max((r.summary.groups[g].n_sequences for r in runs if g in r.summary.groups), default=0)
+         for g in groups}
+    rows = []
+    for r in runs:
+        row = [r.name]
+        for g in groups:
+            s = r.summary.groups.get(g)
+            row += [pct(s.sr), pct(s.nt2f)] if s is not None else ["-", "-"]
+        rows.append(row)
+    labels = [(f"{g[:1].upper()}{g[1:]}" + ("" if fmt == "latex" else f" ({n[g]})"), 2) for g in groups]
+    return Table("challenges", "", ["Run"], labels, [c for _ in groups for c in ("SR", "NT2F")], rows,
+                 stub_align="l")
+
+
+def _csv_table(runs: Sequence[RunScores], table: str) -> Table:
+    """The same data at full precision, machine-readable column names, one row per run (or per
+    run and challenge group)."""
+    metric_cols = [m for m, _ in METRIC_LABELS]
+    rows = []
+    if table == "overall":
+        blocks = _blocks(runs)
+        cols = ["profile", "sequences", *metric_cols,
+                *(f"{b}_{k}" for b in blocks for k in ("scheduled_hz", "wall_hz")),
+                "frames", "scored_frames", "excluded_frames", "invalid_gt_frames", "failed", "missing"]
+        for r in runs:
+            s = r.summary.overall
+            freq = []
+            for b in blocks:
+                f = r.frequencies.get(b)
+                freq += [_num(f.scheduled_hz), _num(f.wall_hz)] if f else ["", ""]
+            rows.append([r.name, r.profile, str(s.n_sequences), *(_num(getattr(s, m)) for m in metric_cols),
+                         *freq, *(str(v) for v in (s.n_frames, s.n_scored, s.n_excluded, s.n_invalid_gt,
+                                                   len(r.failures), len(r.missing)))])
+    else:
+        cols = ["group", "sequences", *metric_cols]
+        for r in runs:
+            for g, s in r.summary.groups.items():
+                rows.append([r.name, g, str(s.n_sequences), *(_num(getattr(s, m)) for m in metric_cols)])
+    return Table(table, "", ["run"], [], cols, rows)
+
+
+def render_table(runs: Sequence[RunScores], fmt: str = "terminal", table: str = "overall") -> str:
+    """The table of ``runs`` in ``fmt`` (terminal, markdown, csv, latex); ``table`` is
+    ``overall`` or ``challenges``."""
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown table format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    if table not in TABLES:
+        raise ValueError(f"unknown table {table!r}; expected one of {', '.join(TABLES)}")
+    runs = list(runs)
+    if fmt == "csv":
+        return render(_csv_table(runs, table), "csv")
+    return render(overall_table(runs, fmt) if table == "overall" else challenges_table(runs, fmt), fmt)

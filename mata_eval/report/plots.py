@@ -1,0 +1,91 @@
+"""Success, precision, normalised precision and NT2F plots of scored runs (PNG, matplotlib's
+Agg canvas; no display needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..score.evaluate import RunScores
+from ..score.metrics import NORM_GRID, PIXEL_GRID, Summary
+from .tables import pct
+
+
+def nt2f_survival(values: Sequence[float], grid: np.ndarray) -> np.ndarray:
+    """Fraction of sequences whose NT2F exceeds each normalised time of ``grid``: the share of
+    sequences still tracked at that point. Its area over [0, 1] is the mean NT2F."""
+    v = np.asarray([x for x in values if np.isfinite(x)], dtype=float)
+    if v.size == 0:
+        return np.full(len(grid), np.nan)
+    g = np.asarray(grid, dtype=float)
+    # at t = 1 the never-failed sequences (NT2F = 1) are still tracked: right-continuous end
+    return (v[None, :] > np.minimum(g, np.nextafter(1.0, 0.0))[:, None]).mean(axis=1)
+
+
+def _figure():
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.0, 4.0), dpi=120)
+    FigureCanvasAgg(fig)
+    return fig, fig.add_subplot(1, 1, 1)
+
+
+def _finish(fig, ax, title: str, xlabel: str, ylabel: str, path: Path) -> Path:
+    ax.set_title(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0, 1.0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="lower left" if "Success" in title or "NT2F" in title else "lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
+    """Write ``success.png``, ``precision.png``, ``norm_precision.png`` and ``nt2f.png`` into
+    ``out_dir``; legends carry MSR, P@20, PR and mean NT2F, runs sorted best first."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = list(runs)
+    paths = []
+
+    def by(metric: str) -> list[RunScores]:
+        return sorted(runs, key=lambda r: -np.nan_to_num(getattr(r.summary.overall, metric), nan=-1.0))
+
+    fig, ax = _figure()
+    iou_x = np.linspace(0.0, 1.0, 21)
+    for r in by("msr"):
+        s: Summary = r.summary.overall
+        ax.plot(iou_x, s.success_curve, label=f"{r.name} [{pct(s.msr)}]")
+    ax.set_xlim(0, 1)
+    paths.append(_finish(fig, ax, "Success plot (MSR)", "IoU threshold", "Success rate", out / "success.png"))
+
+    fig, ax = _figure()
+    for r in by("precision20"):
+        s = r.summary.overall
+        ax.plot(PIXEL_GRID, s.precision_curve, label=f"{r.name} [{pct(s.precision20)}]")
+    ax.set_xlim(0, 50)
+    paths.append(_finish(fig, ax, "Precision plot (P@20)", "Centre error threshold (px)", "Precision",
+                         out / "precision.png"))
+
+    fig, ax = _figure()
+    for r in by("pr"):
+        s = r.summary.overall
+        ax.plot(NORM_GRID, s.norm_precision_curve, label=f"{r.name} [{pct(s.pr)}]")
+    ax.set_xlim(0, 0.5)
+    paths.append(_finish(fig, ax, "Normalised precision plot (PR)", "Normalised centre error threshold",
+                         "Precision", out / "norm_precision.png"))
+
+    fig, ax = _figure()
+    grid = np.linspace(0.0, 1.0, 201)
+    for r in by("nt2f"):
+        surv = nt2f_survival([s.nt2f for s in r.sequences.values()], grid)
+        ax.step(grid, surv, where="post", label=f"{r.name} [{pct(r.summary.overall.nt2f)}]")
+    ax.set_xlim(0, 1)
+    paths.append(_finish(fig, ax, "NT2F plot (sequences not yet failed)", "Normalised time t / N",
+                         "Fraction of sequences", out / "nt2f.png"))
+    return paths
