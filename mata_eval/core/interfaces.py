@@ -23,7 +23,10 @@ from .types import Box, Estimate, Motion, Stamped, TrackerOutput
 @runtime_checkable
 class Tracker(Protocol):
     """Block A. ``prior`` is the search-region centre ``(cx, cy)`` in image pixels proposed by
-    the estimator (paper, end of section 2.3); ``None`` means "use your own last box"."""
+    the estimator (paper, end of section 2.3); ``None`` means "use your own last box".
+
+    A tracker holding a resource (a process, a device) may also define ``close()``: the runner
+    calls it once the sequence is over, finished or failed."""
 
     def initialize(self, image: np.ndarray, box: Box) -> None: ...
 

@@ -214,8 +214,9 @@ def profile_run(spec: Any, *, frames: int = DEFAULT_FRAMES, warmup: int = DEFAUL
             raise ValueError(f"run {spec.name!r}: no sequence {sequence!r} in the dataset (it has: {few})")
         seq = named[0]
     create = lambda block: None if block is None else block.create()  # noqa: E731
-    samples = time_blocks(seq, spec.tracker.create(), create(spec.egomotion), create(spec.estimator),
-                          frames=frames, warmup=warmup, clock=clock)
+    with spec.tracker.instance() as tracker:
+        samples = time_blocks(seq, tracker, create(spec.egomotion), create(spec.estimator),
+                              frames=frames, warmup=warmup, clock=clock)
     machine = describe_machine()
     machine["run"] = {"experiment": experiment, "run": spec.name, "sequence": seq.name, "frames": frames,
                       "warmup": warmup, **{k: spec.resolved.get(k) for k in ("tracker", "egomotion", "estimator")}}

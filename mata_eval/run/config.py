@@ -32,13 +32,14 @@ a block with another plugin's name replaces it.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import hashlib
 import itertools
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import yaml
 
@@ -70,6 +71,18 @@ class PluginBlock:
     def create(self) -> Any:
         """A fresh instance (one per sequence, so no state leaks between sequences)."""
         return self.cls(self.params)
+
+    @contextlib.contextmanager
+    def instance(self) -> Iterator[Any]:
+        """A fresh instance whose ``close()``, if the plugin has one (a tracker process, a
+        device), runs when the ``with`` block ends, however it ends."""
+        obj = self.create()
+        try:
+            yield obj
+        finally:
+            close = getattr(obj, "close", None)
+            if callable(close):
+                close()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -104,9 +104,10 @@ def run_one(exp: Experiment, spec: RunSpec, seq: Sequence) -> SequenceOutcome:
 
     out = run_dir(exp, spec)
     try:
-        run = run_sequence(seq, spec.tracker.create(), _create(spec.egomotion), _create(spec.estimator),
-                           spec.protocol.create(), sequence_seed(spec.seed, seq.name),
-                           feedback=spec.feedback)
+        with spec.tracker.instance() as tracker:
+            run = run_sequence(seq, tracker, _create(spec.egomotion), _create(spec.estimator),
+                               spec.protocol.create(), sequence_seed(spec.seed, seq.name),
+                               feedback=spec.feedback)
         results.write_sequence(out, seq.name, run.boxes, run.frames_csv(), run.trace_csv())
     except Exception as exc:  # one sequence must never take the others down
         reason = f"{type(exc).__name__}: {exc}"
