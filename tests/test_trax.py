@@ -108,6 +108,41 @@ def test_special_region_is_no_target():
         tracker.close()
 
 
+@pytest.fixture(scope="module")
+def c_tracker(tmp_path_factory) -> Path:
+    """tests/trax_servers/prior_tracker.c built against the libtrax.so inside the vot-trax wheel."""
+    import shutil
+    import subprocess
+
+    import trax
+
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        pytest.skip("no C compiler (cc) to build the C TraX tracker")
+    lib = Path(trax.__file__).parent
+    if not (lib / "libtrax.so").is_file():
+        pytest.skip(f"vot-trax has no libtrax.so in {lib}")
+    exe = tmp_path_factory.mktemp("c_tracker") / "prior_tracker"
+    subprocess.run([compiler, "-O2", str(SERVERS / "prior_tracker.c"), "-o", str(exe), f"-L{lib}", "-l:libtrax.so",
+                    f"-Wl,-rpath,{lib}"], check=True, capture_output=True)
+    return exe
+
+
+def test_a_tracker_written_in_c_reads_the_frame_and_the_prior(c_tracker):
+    """The C tracker declares only `path` images: it reads the BMP itself and reports the mean
+    byte / 255 as its confidence, and centres its box on the prior it received."""
+    tracker = TraxTracker(TraxTracker.Params(command=[str(c_tracker)]))
+    try:
+        tracker.initialize(frame(0), Box(10.0, 12.0, 8.0, 6.0))
+        img = frame(1, h=37, w=53)  # odd width: BMP rows are padded
+        out = tracker.track(img, prior=(30.25, 20.5))
+        assert out.confidence == pytest.approx(img.mean() / 255.0, rel=1e-6)
+        assert out.box.as_array() == pytest.approx([26.25, 17.5, 8.0, 6.0], abs=1e-4)
+        assert tracker.track(frame(2)).box.as_array() == pytest.approx([26.25, 17.5, 8.0, 6.0], abs=1e-4)
+    finally:
+        tracker.close()
+
+
 # --- misbehaving trackers -------------------------------------------------------------------------
 
 def test_a_crash_fails_with_exit_code_and_stderr_and_is_reaped():
