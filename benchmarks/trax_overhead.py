@@ -35,7 +35,7 @@ def main() -> None:
     if not seq.is_dir():
         sys.exit(f"needs the real frames in {seq} (set MATA_SHARED_DATA)")
 
-    from mata_eval.registry import load_registry
+    from mata_eval.core.registry import load_registry
     from mata_eval.types import Box
     from mata_eval_plugins.trackers.trax import TraxTracker
 

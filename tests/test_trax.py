@@ -5,7 +5,6 @@ tracker (NanoTrack, VitTrack) served from another process giving the in-process 
 
 from __future__ import annotations
 
-import os
 import sys
 import time
 import zlib
@@ -15,11 +14,11 @@ import cv2
 import numpy as np
 import pytest
 
-from mata_eval.datasets.annotations import read_boxes
-from mata_eval.errors import ConfigError
-from mata_eval.registry import load_registry
-from mata_eval.scheduler import run_sequence
-from mata_eval.sequence import Sequence
+from mata_eval.core.errors import ConfigError
+from mata_eval.core.registry import load_registry
+from mata_eval.core.sequence import Sequence
+from mata_eval.data.datasets.annotations import read_boxes
+from mata_eval.run.scheduler import run_sequence
 from mata_eval.types import Box
 
 pytest.importorskip("trax", reason="the vot-trax package (extra `trax`) is not installed")
@@ -210,8 +209,8 @@ def _experiment(tmp_path: Path, tracker_yaml: str) -> Path:
 
 
 def test_runner_records_the_crash_as_a_failed_sequence_and_reaps_every_process(tmp_path):
-    from mata_eval.config import load_experiment
-    from mata_eval.runner import run_experiment
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import run_experiment
 
     script = SERVERS / "scripted_server.py"
     pid_file = tmp_path / "pid"
@@ -235,7 +234,7 @@ def test_runner_records_the_crash_as_a_failed_sequence_and_reaps_every_process(t
     ("{name: trax, command: [x], env: {A: [1]}}", "`env.A` must be a string"),
 ])
 def test_bad_blocks_name_the_line_and_the_key(tmp_path, block, message):
-    from mata_eval.config import load_experiment
+    from mata_eval.run.config import load_experiment
 
     exp = _experiment(tmp_path, block)
     with pytest.raises(ConfigError) as err:
