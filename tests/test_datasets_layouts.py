@@ -203,7 +203,7 @@ def test_dtb70_official_layout(tmp_path):
     (root / "anno/att/Yacht2.txt").write_text("0,0,0,0,0,0,0,1,0,0,0\n")
     seqs = {s.name: s for s in make(DTB70, root=str(root)).sequences()}
     gull = seqs["Gull1"]
-    assert len(gull) == 4 and np.isnan(gull.groundtruth[1]).all() and gull.groundtruth[2].tolist() == [2, 3, 4, 5]
+    assert len(gull) == 4 and gull.groundtruth[1].tolist() == [0, 0, 0, 0] and gull.groundtruth[2].tolist() == [2, 3, 4, 5]
     assert gull.attributes == {"SV", "OCC", "MB"} and seqs["Yacht2"].attributes == {"OV"}
     assert [int(gull.image(i)[0, 0, 0]) for i in range(4)] == [1, 2, 3, 4]
     with pytest.raises(FrameReadError, match=r"Yacht2/img/00002\.jpg"):

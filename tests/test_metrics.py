@@ -92,17 +92,21 @@ def test_nt2f_tau_threshold():
     assert M.score_sequence(pred, gt, tau=0.5).nt2f == pytest.approx(1 / 4)
 
 
-def test_nt2f_skips_frames_without_valid_ground_truth():
+def test_nt2f_frames_without_valid_ground_truth_never_fail():
     gt = np.tile([0.0, 0.0, 10.0, 10.0], (6, 1))
     gt[2] = np.nan          # target absent: can neither fail nor succeed
     gt[3, 2] = 0.0          # zero-width ground truth: same
     pred = shifted(gt, np.array([0, 0, 50, 50, 0, 50]))
     pred[2] = [50, 50, 10, 10]
     s = M.score_sequence(pred, gt)
-    # valid frames 0, 1, 4, 5 -> first failure at frame 5, the 4th valid frame: T_f = 3, N = 4
-    assert s.nt2f == pytest.approx(3 / 4)
+    # eq. nt2f (mata-paper.tex L499-505): first failure at frame 5 of a 6-frame sequence
+    assert s.nt2f == pytest.approx(5 / 6)
     assert s.failure_frame == 5
     assert s.n_excluded == 2 and s.n_invalid_gt == 2 and s.n_scored == 6
+    # nt2f-valid: valid frames 0, 1, 4, 5 -> the failure is the 4th valid frame: T_f = 3, N = 4
+    valid_only = M.score_sequence(pred, gt, profile="nt2f-valid")
+    assert valid_only.nt2f == pytest.approx(3 / 4) and valid_only.failure_frame == 5
+    assert valid_only.msr == s.msr and valid_only.sr == s.sr  # NT2F is all it changes
 
 
 def test_scored_and_annotated_masks_select_frames():
@@ -112,7 +116,8 @@ def test_scored_and_annotated_masks_select_frames():
     dsp = np.arange(8) % 2 == 0                  # DSP keeps frames 0, 2, 4, 6
     s = M.score_sequence(pred, gt, scored=dsp)
     assert s.n_scored == 4 and s.n_frames == 8
-    assert s.nt2f == pytest.approx(3 / 4) and s.failure_frame == 6
+    assert s.nt2f == pytest.approx(6 / 8) and s.failure_frame == 6   # frame 6 of 8
+    assert M.score_sequence(pred, gt, scored=dsp, profile="nt2f-valid").nt2f == pytest.approx(3 / 4)  # 4th of 4
     assert s.sr == pytest.approx(3 / 4)
     ann = np.zeros(8, bool)
     ann[[0, 4, 7]] = True                        # sparse ground truth: only these frames
@@ -155,7 +160,7 @@ def test_threshold_grids():
 
 
 def test_profiles_are_the_named_ones():
-    assert set(M.PROFILES) == {"default", "pysot", "pysot-toolkit", "got10k", "pytracking", "mmtracking"}
+    assert set(M.PROFILES) == {"default", "nt2f-valid", "pysot", "pysot-toolkit", "got10k", "pytracking", "mmtracking"}
     with pytest.raises(KeyError, match="available: default"):
         M.get_profile("vot2099")
 
@@ -180,16 +185,19 @@ def hand_case():
 # 0.6000000000000001), IoU 0 passes none.
 HAND_EXPECTED = {
     #                msr             sr      p@20    pr      nt2f  excluded
+    # NT2F: the zero-size prediction at frame 9 fails (frame 4 cannot): T_f = 9, N = 10
     # skip NaN (frame 4): D = 9; 7 + 6*20 + 12 = 139
-    "default":       (139 / 189, 7 / 9, 1.0, 6 / 9, 8 / 9, 1),
+    "default":       (139 / 189, 7 / 9, 1.0, 6 / 9, 9 / 10, 1),
+    # NT2F over the 9 frames with a target: the failure is the 9th of them, T_f = 8
+    "nt2f-valid":    (139 / 189, 7 / 9, 1.0, 6 / 9, 8 / 9, 1),
     # NaN GT = failure for success, hit for precision; D = 10
-    "pysot":         (139 / 210, 7 / 10, 1.0, 7 / 10, 8 / 9, 0),
+    "pysot":         (139 / 210, 7 / 10, 1.0, 7 / 10, 9 / 10, 0),
     # also x = 0 (frame 7) is a success failure: 7 + 6*20 = 127
-    "pysot-toolkit": (127 / 210, 6 / 10, 1.0, 7 / 10, 8 / 9, 0),
+    "pysot-toolkit": (127 / 210, 6 / 10, 1.0, 7 / 10, 9 / 10, 0),
     # same masks as pysot for this case (centre x + w/2 = 10 > 0 at frame 7)
-    "mmtracking":    (139 / 210, 7 / 10, 1.0, 7 / 10, 8 / 9, 0),
+    "mmtracking":    (139 / 210, 7 / 10, 1.0, 7 / 10, 9 / 10, 0),
     # NaN row removed (D = 9), frame 0 := GT (20): 20 + 6*20 + 12 = 152
-    "got10k":        (152 / 189, 8 / 9, 1.0, 7 / 9, 8 / 9, 1),
+    "got10k":        (152 / 189, 8 / 9, 1.0, 7 / 9, 9 / 10, 1),
     # frame 0 := GT, zero-size frame 9 := frame 8 (IoU 1); frames 4, 7 invalid (x = 0):
     # success failure, (normalised) precision hit; 20 + 6*20 + 20 = 160
     "pytracking":    (160 / 210, 8 / 10, 1.0, 10 / 10, 1.0, 0),

@@ -71,6 +71,10 @@ class Profile:
     #: predictions longer / shorter than the ground truth: ``error``; ``truncate`` to the shorter
     #: of the two (got10k); ``pad`` with zero boxes or truncate (pytracking).
     length_mismatch: Literal["error", "truncate", "pad"] = "error"
+    #: NT2F (eq. nt2f; no toolkit has it). ``sequence``: as the paper, ``T_f`` is the frame index
+    #: of the first failure and ``N`` the sequence length; ``valid``: both count only the scored,
+    #: annotated frames with valid ground truth. Frames without a valid target never fail.
+    nt2f_frames: Literal["sequence", "valid"] = "sequence"
 
 
 PROFILES: dict[str, Profile] = {
@@ -80,6 +84,12 @@ PROFILES: dict[str, Profile] = {
             "default",
             "mata-eval: frames with NaN or zero-size ground truth are skipped by every metric "
             "(and counted); frame 0 scored as predicted",
+        ),
+        Profile(
+            "nt2f-valid",
+            "as default, but NT2F's T_f and N count only the scored frames with valid ground truth "
+            "(frames without a target skipped in time, not only for the failure)",
+            nt2f_frames="valid",
         ),
         Profile(
             "pysot",
@@ -99,8 +109,9 @@ PROFILES: dict[str, Profile] = {
         ),
         Profile(
             "got10k",
-            "got10k ExperimentUAV123: NaN GT rows removed; frame 0 replaced by GT; normalised error "
-            "divided by max(1, w), max(1, h)",
+            "got10k ExperimentOTB/UAV123/DTB70: NaN GT rows removed, every other row scored as written "
+            "(DTB70's 0,0,0,0 = failure); frame 0 replaced by GT; normalised error divided by "
+            "max(1, w), max(1, h)",
             iou_thresholds=GOT10K_IOU_GRID,
             success_valid="finite", invalid_success="exclude",
             precision_valid="finite", invalid_precision="exclude",

@@ -19,8 +19,9 @@ class FrameReadError(RuntimeError):
 class Sequence:
     """One sequence of a dataset.
 
-    ``groundtruth``: (N, 4) float ``x, y, w, h``; rows that are not annotated or where the target
-    is absent are NaN (metrics skip them, see :mod:`mata_eval.score.metrics`).
+    ``groundtruth``: (N, 4) float ``x, y, w, h`` as the annotation file gives them; rows that are
+    not annotated are NaN, rows where the target is absent are NaN or a zero-size box (DTB70's
+    ``0,0,0,0``), and the metric profile decides what they count as (:mod:`mata_eval.score.metrics`).
     ``annotated``: optional (N,) bool mask for sparse ground truth (VTUAV: every 10th frame);
     ``None`` means every frame is annotated.
     ``frame_paths``: one image path per frame (may be empty when only annotations are loaded).

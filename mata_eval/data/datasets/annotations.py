@@ -54,10 +54,12 @@ def read_boxes(path: str | Path, *, allow_polygons: bool = True) -> np.ndarray:
 
     One line per frame; values separated by commas, tabs or spaces (mixed is fine). A line holds
     4 values (``x, y, w, h``) or, when ``allow_polygons``, 8 values (a VOT polygon, converted to
-    its axis-aligned bounding box). ``NaN`` tokens are accepted. Rows that are not a valid box
-    (a NaN, or width/height <= 0 such as the ``0,0,0,0`` some datasets use for an absent target)
-    become all-NaN rows, which every metric skips. Blank lines at the end of the file are ignored;
-    blank lines in the middle are an error (they would shift every later frame)."""
+    its axis-aligned bounding box). ``NaN`` tokens are accepted. Rows are kept as the file gives
+    them, including the ones that are no box (a NaN, or the ``0,0,0,0`` DTB70 writes for an absent
+    target): what such a frame counts as is the metric profile's call, and toolkits disagree
+    (got10k scores DTB70's ``0,0,0,0`` rows as failures and removes UAV123's NaN rows; the
+    ``default`` profile skips both). Blank lines at the end of the file are ignored; blank lines in
+    the middle are an error (they would shift every later frame)."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -92,16 +94,7 @@ def read_boxes(path: str | Path, *, allow_polygons: bool = True) -> np.ndarray:
         except ValueError:
             raise AnnotationError(path, i, f"expected numbers (or NaN), got {line.strip()!r}") from None
     arr = np.asarray(rows, dtype=np.float64)
-    boxes = polygon_to_box(arr) if width == 8 else arr
-    return invalid_to_nan(boxes)
-
-
-def invalid_to_nan(boxes: np.ndarray) -> np.ndarray:
-    """Rows with a non-finite value or a width/height <= 0 set to NaN (absent / invalid target)."""
-    out = np.array(boxes, dtype=np.float64, copy=True)
-    bad = ~np.isfinite(out).all(axis=1) | (out[:, 2] <= 0) | (out[:, 3] <= 0)
-    out[bad] = np.nan
-    return out
+    return polygon_to_box(arr) if width == 8 else arr
 
 
 # --- attribute flags -------------------------------------------------------------------------

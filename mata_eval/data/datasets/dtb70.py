@@ -1,7 +1,7 @@
 """DTB70 (Li & Yeung, AAAI 2017): 70 drone sequences, official layout (github flyers/drone-tracking)::
 
     <root>/<seq>/img/00001.jpg
-    <root>/<seq>/groundtruth_rect.txt          x,y,w,h per frame (0,0,0,0 when absent -> NaN)
+    <root>/<seq>/groundtruth_rect.txt          x,y,w,h per frame (0,0,0,0 when absent, kept as is)
 
 Attributes (11 flags) are not part of the download but of the authors' MATLAB kit:
 ``experiments/anno/att/<seq>.txt``; looked for in ``<root>/anno/att`` and ``<root>/att``, or give

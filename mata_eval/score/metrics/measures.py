@@ -10,8 +10,9 @@ Definitions (``default`` profile; ``docs/metrics.md`` has the full table):
   ``np.arange(0, 1.05, 0.05)`` with ``IoU > t`` (a perfect tracker scores 20/21, as everywhere).
 - PR: normalised precision at 0.2, the centre error divided per axis by the ground-truth size.
   ``precision20``: fraction of frames with centre error <= 20 px.
-- NT2F (eq. nt2f): ``T_f / N`` with ``T_f`` the first frame with IoU <= tau (tau = 0), ``N`` if
-  none, counted over the frames that are scored and have valid ground truth.
+- NT2F (eq. nt2f): ``T_f / N`` with ``T_f`` the index of the first frame with IoU <= tau
+  (tau = 0), ``N`` if none, and ``N`` the sequence length; frames that are not scored or have no
+  valid ground truth cannot fail (profile ``nt2f-valid``: they do not count in time either).
 
 Everything is vectorised numpy: one sequence costs a handful of array operations.
 """
@@ -236,9 +237,11 @@ def score_sequence(
 ) -> SequenceScores:
     """Score one sequence (paper 3.3). ``scored``: the protocol's scored frames (DSP keeps every
     n-th frame); ``annotated``: the sparse-annotation mask (VTUAV: every 10th frame). Only frames
-    in both enter any metric. NT2F is computed over those frames that also have valid ground
-    truth (finite, w, h > 0) whatever the profile: frames without a target can neither fail nor
-    succeed, so they are skipped in time (``docs/decisions/metrics.md``)."""
+    in both enter any metric. NT2F's failure is the first of those frames that also has valid
+    ground truth (finite, w, h > 0) and IoU <= tau, whatever the profile: a frame without a
+    target can neither fail nor succeed. ``T_f`` is that frame's index and ``N`` the sequence
+    length (eq. nt2f), or both count only those frames (``nt2f_frames = "valid"``;
+    ``docs/decisions/metrics.md``)."""
     prof = get_profile(profile)
     g = _as_boxes(gt, "gt")
     n_frames = len(g)
@@ -265,12 +268,16 @@ def score_sequence(
     nt2f_ious = overlaps[valid]
     t_f = first_failure(nt2f_ious, tau)
     failure_frame = int(frame_index[np.flatnonzero(valid)[t_f]]) if t_f < len(nt2f_ious) else None
+    if prof.nt2f_frames == "valid" or not len(nt2f_ious):
+        nt2f_value = nt2f(nt2f_ious, tau)
+    else:  # eq. nt2f: T_f a frame of the sequence, N its length
+        nt2f_value = (n_frames if failure_frame is None else failure_frame) / n_frames
     return SequenceScores(
         sr=float(success[SR_INDEX]),
         msr=float(np.mean(success)),
         pr=float(norm_precision[P20_INDEX]),
         precision20=float(precision[P20_INDEX]),
-        nt2f=nt2f(nt2f_ious, tau),
+        nt2f=nt2f_value,
         n_frames=n_frames,
         n_scored=int(keep.sum()),
         n_excluded=int((~s_valid).sum()) if prof.invalid_success == "exclude" else 0,

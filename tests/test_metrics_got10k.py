@@ -1,0 +1,82 @@
+"""The `got10k` profile against the got10k toolkit itself (PyPI `got10k`, a test dependency): its
+ExperimentDTB70.report() is run on the five trackers of ../shared/data/results/DTB70.zip and our
+scores must equal its success score (AUC), precision at 20 px and success rate, per sequence and
+overall. DTB70's Car6 holds 19 ground-truth rows `0,0,0,0` (target out of view) that got10k
+scores as failures."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mata_eval.score import evaluate
+
+got10k_dtb70 = pytest.importorskip("got10k.experiments.dtb70", reason="the got10k toolkit is not installed")
+
+TRACKERS = ("LightTrack", "NanoTrack", "SiamAPN", "SiamAPN++", "SiamTPN")
+
+
+@pytest.fixture(scope="module")
+def got10k_report(shared_data, tmp_path_factory):
+    """got10k's own report: its DTB70 layout (<root>/<seq>/groundtruth_rect.txt, img/ with one
+    file per frame; the report reads no image, so empty files do) and results/DTB70/<tracker>/."""
+    tmp = tmp_path_factory.mktemp("got10k")
+    ann = shared_data / "annotations" / "DTB70"
+    root = tmp / "DTB70"
+    for gt in sorted(ann.glob("*.txt")):
+        if gt.name.startswith(("ATTRIBUTE", "README")):
+            continue
+        seq = root / gt.stem
+        (seq / "img").mkdir(parents=True)
+        text = gt.read_text()
+        (seq / "groundtruth_rect.txt").write_text(text)
+        for k in range(1, len(text.strip().splitlines()) + 1):
+            (seq / "img" / f"{k:05d}.jpg").touch()
+    with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
+        z.extractall(tmp / "results")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    exp = got10k_dtb70.ExperimentDTB70(str(root), result_dir=str(tmp / "results"), report_dir=str(tmp / "reports"))
+    return tmp, exp.report(list(TRACKERS))
+
+
+@pytest.mark.parametrize("tracker", TRACKERS)
+def test_got10k_profile_reproduces_the_got10k_toolkit_on_dtb70(tracker, got10k_report, shared_data):
+    tmp, perf = got10k_report
+    ann = shared_data / "annotations" / "DTB70"
+    seqs = evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)})
+    _, found = evaluate.read_results(tmp / "results" / "DTB70" / tracker)
+    per_seq, _, summary, missing, _ = evaluate.score_results(found, seqs, profile="got10k")
+    assert not missing
+    theirs = perf[tracker]
+    for name, s in per_seq.items():
+        ref = theirs["seq_wise"][name]
+        assert s.msr == pytest.approx(ref["success_score"], abs=1e-12), name
+        assert s.precision20 == pytest.approx(ref["precision_score"], abs=1e-12), name
+        assert s.sr == pytest.approx(ref["success_rate"], abs=1e-12), name
+    overall = theirs["overall"]
+    for ours, key in ((summary.overall.msr, "success_score"), (summary.overall.precision20, "precision_score"),
+                      (summary.overall.sr, "success_rate")):
+        assert round(ours, 4) == round(overall[key], 4)
+        assert ours == pytest.approx(overall[key], abs=1e-12)
+
+
+def test_car6_zero_rows_count_for_got10k_and_are_skipped_by_default(got10k_report, shared_data):
+    """The 19 `0,0,0,0` rows of Car6 stay in got10k's denominator (as failures: IoU 0) and are
+    skipped by the default profile; this is what moved SiamAPN's P@20 in the third decimal."""
+    tmp, perf = got10k_report
+    ann = shared_data / "annotations" / "DTB70"
+    car6 = [s for s in evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)}) if s.name == "Car6"]
+    _, found = evaluate.read_results(tmp / "results" / "DTB70" / "SiamAPN")
+    got10k = evaluate.score_results(found, car6, profile="got10k")[0]["Car6"]
+    default = evaluate.score_results(found, car6, profile="default")[0]["Car6"]
+    assert got10k.n_invalid_gt == default.n_invalid_gt == default.n_excluded == 19
+    assert got10k.n_excluded == 0
+    n = got10k.n_frames
+    # success at IoU > 0 (first threshold): the zero rows fail in got10k, are absent by default
+    assert got10k.success_curve[0] * n == pytest.approx(default.success_curve[0] * (n - 19))
+    assert got10k.msr == pytest.approx(perf["SiamAPN"]["seq_wise"]["Car6"]["success_score"], abs=1e-12)
