@@ -1,8 +1,8 @@
-"""The `got10k` profile against the got10k toolkit itself (PyPI `got10k`, a test dependency): its
-ExperimentDTB70.report() is run on the five trackers of ../shared/data/results/DTB70.zip and our
-scores must equal its success score (AUC), precision at 20 px and success rate, per sequence and
-overall. DTB70's Car6 holds 19 ground-truth rows `0,0,0,0` (target out of view) that got10k
-scores as failures."""
+"""Compatibility profiles against the toolkits' own code on real results (the five trackers of
+../shared/data/results/DTB70.zip): `got10k` against the got10k toolkit (PyPI `got10k`, a test
+dependency; its ExperimentDTB70.report() runs here), `pysot-toolkit` against pysot-toolkit's
+statistics functions from a checkout ($MATA_PYSOT_TOOLKIT_REPO; not on PyPI). DTB70's Car6 holds
+19 ground-truth rows `0,0,0,0` (target out of view) that got10k scores as failures."""
 
 from __future__ import annotations
 
@@ -80,3 +80,48 @@ def test_car6_zero_rows_count_for_got10k_and_are_skipped_by_default(got10k_repor
     # success at IoU > 0 (first threshold): the zero rows fail in got10k, are absent by default
     assert got10k.success_curve[0] * n == pytest.approx(default.success_curve[0] * (n - 19))
     assert got10k.msr == pytest.approx(perf["SiamAPN"]["seq_wise"]["Car6"]["success_score"], abs=1e-12)
+
+
+# --- pysot-toolkit's own code (not on PyPI: a checkout, like mmtracking's golden test) -----------
+
+def _pysot_toolkit_statistics() -> dict:
+    """success_overlap / success_error / overlap_ratio from a pysot-toolkit checkout
+    ($MATA_PYSOT_TOOLKIT_REPO), read from git so no build of its Cython module is needed; the
+    numba decorators are dropped (they only compile the same numpy code)."""
+    import os
+    import subprocess
+
+    root = os.environ.get("MATA_PYSOT_TOOLKIT_REPO")
+    if not root:
+        pytest.skip("set MATA_PYSOT_TOOLKIT_REPO to a StrangerZhang/pysot-toolkit checkout (or mirror)")
+    src = subprocess.run(["git", "-C", root, "show", "HEAD:pysot/utils/statistics.py"],
+                         check=True, capture_output=True, text=True).stdout
+    src = "\n".join(line for line in src.splitlines()
+                    if line.strip() not in ("from numba import jit", "from . import region", "@jit(nopython=True)"))
+    namespace: dict = {}
+    exec(compile(src, "pysot/utils/statistics.py", "exec"), namespace)  # noqa: S102 (a reference toolkit)
+    return namespace
+
+
+def test_pysot_toolkit_profile_equals_pysot_toolkit_code_on_dtb70(shared_data, tmp_path):
+    """OPEBenchmark's per-sequence success (AUC) and precision at 20 px, computed by the
+    toolkit's own functions on the raw ground truth, for all five trackers of DTB70.zip."""
+    stats = _pysot_toolkit_statistics()
+    ann = shared_data / "annotations" / "DTB70"
+    seqs = evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)})
+    with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
+        z.extractall(tmp_path)
+
+    def center(b):  # OPEBenchmark.convert_bb_to_center
+        return np.array([b[:, 0] + (b[:, 2] - 1) / 2, b[:, 1] + (b[:, 3] - 1) / 2]).T
+
+    for tracker in TRACKERS:
+        _, found = evaluate.read_results(tmp_path / "DTB70" / tracker)
+        per_seq = evaluate.score_results(found, seqs, profile="pysot-toolkit")[0]
+        for seq in seqs:
+            gt = np.loadtxt(ann / f"{seq.name}.txt", delimiter=",")
+            pred = found[seq.name].boxes
+            auc = np.mean(stats["success_overlap"](gt, pred, len(gt)))
+            p20 = stats["success_error"](center(gt), center(pred), np.arange(0, 51, 1), len(gt))[20]
+            assert per_seq[seq.name].msr == pytest.approx(auc, abs=1e-12), (tracker, seq.name)
+            assert per_seq[seq.name].precision20 == pytest.approx(p20, abs=1e-12), (tracker, seq.name)
