@@ -51,8 +51,8 @@ from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
 STDERR_LINES = 20  # lines of the tracker's stderr quoted in a failure reason
-QUIT_GRACE_S = 2.0
-SCRATCH_DIR = "/dev/shm"  # frames handed over as files go to memory-backed storage when it exists  # how long a tracker may take to exit after `quit` before it is killed
+QUIT_GRACE_S = 2.0  # how long a tracker may take to exit after `quit` before it is killed
+SCRATCH_DIR = "/dev/shm"  # frames handed over as files go to memory-backed storage when it exists
 
 
 class TrackerProcessError(RuntimeError):
@@ -69,7 +69,7 @@ class _Process:
     scratch: tempfile.TemporaryDirectory
     client: object = None
     timed_out: bool = False
-    reaped: bool = field(default=False)
+    reaped: bool = False
 
     def kill(self) -> None:
         """SIGKILL the whole process group (the tracker and anything it started)."""
