@@ -12,7 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mata_eval.data.datasets.dtb70 import DTB70
+from mata_eval.params import build_params
 from mata_eval.score import evaluate
+
+def dtb70(shared: Path) -> list:
+    """The 70 DTB70 sequences, annotations only (our loader)."""
+    ann = shared / "annotations" / "DTB70"
+    return DTB70(build_params(DTB70.Params, {"root": str(ann), "annotations": str(ann)})).sequences()
+
 
 got10k_dtb70 = pytest.importorskip("got10k.experiments.dtb70", reason="the got10k toolkit is not installed")
 
@@ -47,8 +55,7 @@ def got10k_report(shared_data, tmp_path_factory):
 @pytest.mark.parametrize("tracker", TRACKERS)
 def test_got10k_profile_reproduces_the_got10k_toolkit_on_dtb70(tracker, got10k_report, shared_data):
     tmp, perf = got10k_report
-    ann = shared_data / "annotations" / "DTB70"
-    seqs = evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)})
+    seqs = dtb70(shared_data)
     _, found = evaluate.read_results(tmp / "results" / "DTB70" / tracker)
     per_seq, _, summary, missing, _ = evaluate.score_results(found, seqs, profile="got10k")
     assert not missing
@@ -69,8 +76,7 @@ def test_car6_zero_rows_count_for_got10k_and_are_skipped_by_default(got10k_repor
     """The 19 `0,0,0,0` rows of Car6 stay in got10k's denominator (as failures: IoU 0) and are
     skipped by the default profile; this is what moved SiamAPN's P@20 in the third decimal."""
     tmp, perf = got10k_report
-    ann = shared_data / "annotations" / "DTB70"
-    car6 = [s for s in evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)}) if s.name == "Car6"]
+    car6 = [s for s in dtb70(shared_data) if s.name == "Car6"]
     _, found = evaluate.read_results(tmp / "results" / "DTB70" / "SiamAPN")
     got10k = evaluate.score_results(found, car6, profile="got10k")[0]["Car6"]
     default = evaluate.score_results(found, car6, profile="default")[0]["Car6"]
@@ -108,7 +114,7 @@ def test_pysot_toolkit_profile_equals_pysot_toolkit_code_on_dtb70(shared_data, t
     toolkit's own functions on the raw ground truth, for all five trackers of DTB70.zip."""
     stats = _pysot_toolkit_statistics()
     ann = shared_data / "annotations" / "DTB70"
-    seqs = evaluate.load_dataset("dtb70", str(ann), {"annotations": str(ann)})
+    seqs = dtb70(shared_data)
     with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
         z.extractall(tmp_path)
 
