@@ -1,6 +1,10 @@
 """Plugin discovery: every module named in the ``mata_eval`` entry-point group is imported and
 registered with pluggy. Built-in plugins come in the same way as third-party ones. A module that
-fails to import is recorded (name, package, error) and the others keep working."""
+fails to import is recorded (name, package, error) and the others keep working.
+
+A name ``package.module:Class`` is a class loaded directly, without packaging (quick
+experiments): the module is imported from the Python path, or from the folder mata-eval runs
+from, and the class must declare its ``Params`` like any plugin."""
 
 from __future__ import annotations
 
@@ -8,6 +12,9 @@ import dataclasses
 import functools
 import importlib
 import importlib.metadata as md
+import os
+import re
+import sys
 import traceback
 
 import pluggy
@@ -37,7 +44,10 @@ class Registry:
     failures: tuple[LoadFailure, ...]
 
     def get(self, kind: str, name: str) -> PluginEntry:
-        """The plugin ``name`` of ``kind``; KeyError lists the names that exist."""
+        """The plugin ``name`` of ``kind``, or the class a ``package.module:Class`` name points to;
+        KeyError says why not (for a plugin name: the names that exist)."""
+        if ":" in name:
+            return load_class(kind, name)
         try:
             return self.plugins[kind][name]
         except KeyError:
@@ -48,6 +58,35 @@ class Registry:
 
     def names(self, kind: str) -> list[str]:
         return sorted(self.plugins.get(kind, {}))
+
+
+_CLASS_PATH = re.compile(r"^[A-Za-z_]\w*(\.[A-Za-z_]\w*)*:[A-Za-z_]\w*$")
+
+
+def load_class(kind: str, path: str) -> PluginEntry:
+    """The class named by ``package.module:Class``, as a plugin of ``kind``. KeyError says what
+    is wrong with the path and what was expected."""
+    expected = f"expected 'package.module:Class', a {kind} class with a Params dataclass"
+    if not _CLASS_PATH.match(path):
+        raise KeyError(f"{kind} {path!r} is not a class path; {expected}")
+    module_name, class_name = path.split(":")
+    if os.getcwd() not in sys.path:  # the folder mata-eval runs from, after everything else
+        sys.path.append(os.getcwd())
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # the user's module: any error in it is reported, not raised
+        last = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        raise KeyError(f"{kind} {path!r}: cannot import {module_name!r} ({last}); {expected}") from None
+    cls = getattr(module, class_name, None)
+    if cls is None:
+        raise KeyError(f"{kind} {path!r}: module {module_name!r} ({module.__file__}) has no {class_name!r}; "
+                       f"{expected}")
+    if not isinstance(cls, type):
+        raise KeyError(f"{kind} {path!r}: {class_name!r} is a {type(cls).__name__}, not a class; {expected}")
+    if not dataclasses.is_dataclass(getattr(cls, "Params", None)):
+        raise KeyError(f"{kind} {path!r}: class {class_name} has no Params dataclass (an empty one will do: "
+                       "@dataclass(frozen=True) class Params: pass); see README 'Writing a plugin'")
+    return PluginEntry(kind, path, cls, module_name, describe_line(cls))
 
 
 def describe_line(cls: type) -> str:
