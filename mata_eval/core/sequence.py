@@ -29,6 +29,8 @@ class Sequence:
     on-the-fly occlusion augmentation).
     ``meta``: free-form per-sequence extras (e.g. per-frame occlusion fractions, true
     homographies) keyed by name.
+    ``init``: the box the tracker starts from when it is not the ground truth of frame 0 (a
+    flight video without ground truth: every ``groundtruth`` row NaN, nothing scored).
     """
 
     name: str
@@ -39,14 +41,15 @@ class Sequence:
     loader: Callable[[int], np.ndarray] | None = field(default=None, repr=False)
     annotated: np.ndarray | None = None
     meta: Mapping[str, object] = field(default_factory=dict, repr=False)
+    init: Box | None = None
 
     def __len__(self) -> int:
         return int(self.groundtruth.shape[0])
 
     @property
     def init_box(self) -> Box:
-        """The ground-truth box of frame 0, used to initialise the tracker."""
-        return Box.from_array(self.groundtruth[0])
+        """The box that initialises the tracker: ``init``, else the ground truth of frame 0."""
+        return self.init if self.init is not None else Box.from_array(self.groundtruth[0])
 
     def image(self, k: int) -> np.ndarray:
         """Frame ``k`` as a BGR uint8 array; raises :class:`FrameReadError` naming the file."""

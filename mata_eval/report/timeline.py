@@ -47,9 +47,16 @@ def calls_from_trace(trace_rows: Iterable[Sequence]) -> dict[str, list[Call]]:
 
 
 def infer_fps(trace_rows: Iterable[Sequence], default: float = 30.0) -> float:
-    """Camera rate from the trace (``frame / t`` of any start or camera event after frame 0)."""
-    for r in _rows(trace_rows):
-        if (r.block == "camera" or r.event in ("start", "skip")) and r.frame > 0 and r.t > 0:
+    """Camera rate from the trace: ``frame / t`` of its last camera event (a live run's camera
+    times are real, a little late: the last frame makes the error smallest), else of any start or
+    skip after frame 0 (traces written before the camera lane existed)."""
+    rows = _rows(trace_rows)
+    cam = [r for r in rows if r.block == "camera" and r.frame > 0 and r.t > 0]
+    if cam:
+        last = max(cam, key=lambda r: r.frame)
+        return last.frame / last.t
+    for r in rows:
+        if r.event in ("start", "skip") and r.frame > 0 and r.t > 0:
             return r.frame / r.t
     return default
 

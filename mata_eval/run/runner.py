@@ -104,10 +104,14 @@ def run_one(exp: Experiment, spec: RunSpec, seq: Sequence) -> SequenceOutcome:
 
     out = run_dir(exp, spec)
     try:
+        protocol = spec.protocol.create()
+        rng = sequence_seed(spec.seed, seq.name)
         with spec.tracker.instance() as tracker:
-            run = run_sequence(seq, tracker, _create(spec.egomotion), _create(spec.estimator),
-                               spec.protocol.create(), sequence_seed(spec.seed, seq.name),
-                               feedback=spec.feedback)
+            blocks = (tracker, _create(spec.egomotion), _create(spec.estimator))
+            if hasattr(protocol, "run_sequence"):  # a protocol that runs the blocks itself (live)
+                run = protocol.run_sequence(seq, *blocks, rng, feedback=spec.feedback)
+            else:  # a timing preset of the camera-clock scheduler
+                run = run_sequence(seq, *blocks, protocol, rng, feedback=spec.feedback)
         results.write_sequence(out, seq.name, run.boxes, run.frames_csv(), run.trace_csv())
     except Exception as exc:  # one sequence must never take the others down
         reason = f"{type(exc).__name__}: {exc}"

@@ -118,7 +118,9 @@ class Timing:
 
 
 class ProtocolPreset(Protocol):
-    """What a protocol plugin provides: the timing of each block for a camera rate."""
+    """What a protocol plugin provides: the timing of each block for a camera rate. (A protocol
+    that runs the blocks itself, ``live``, provides ``run_sequence(sequence, tracker, egomotion,
+    estimator, rng, feedback)`` returning a :class:`SequenceRun` instead; the runner calls it.)"""
 
     def timing(self, fps: float) -> Timing: ...
 
