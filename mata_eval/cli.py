@@ -50,6 +50,20 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _executor(args: argparse.Namespace) -> Any:
+    """The executor ``--executor`` names (None: the runner's default local pool)."""
+    if args.address and args.executor != "ray":
+        raise ConfigError("--address", (), "--address needs --executor ray")
+    if args.executor != "ray":
+        return None
+    from .run.executors import RayExecutor
+
+    try:
+        return RayExecutor(args.address, cpus=args.jobs)
+    except ImportError as exc:
+        raise ConfigError("--executor ray", (), str(exc)) from None
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from .run.config import load_experiment
     from .run.runner import ResultsConflict, run_experiment
@@ -61,7 +75,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     print(f"experiment {exp.name}: {len(exp.runs)} run(s) -> {exp.output}")
     try:
         outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,
-                                  progress=not args.quiet)
+                                  progress=not args.quiet, executor=_executor(args))
     except ResultsConflict as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -583,6 +597,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="output folder (overrides `output` in the file)")
     p.add_argument("--no-report", action="store_true", help="do not score and print the table")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="where the sequences run: local worker processes (default) or a Ray cluster "
+                        "(pip install 'mata-eval[ray]'; docs/cluster.md)")
+    p.add_argument("--address", metavar="auto|ray://HOST:PORT",
+                   help="Ray cluster to use (default: start a local one with -j CPUs)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check an experiment file and list its runs without running")

@@ -1,4 +1,5 @@
-"""Run an experiment: every (run, sequence) pair through the scheduler, in worker processes.
+"""Run an experiment: every (run, sequence) pair through the scheduler, on an executor
+(:mod:`mata_eval.run.executors`: local worker processes or a Ray cluster).
 
 A sequence that fails (unreadable frames, a tracker that raises or returns NaN) is recorded in
 ``<seq>.failed.json`` and the others go on; finished sequences are skipped on a rerun unless
@@ -8,20 +9,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import traceback
-import zlib
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
-import numpy as np
 from tqdm import tqdm
 
-from . import results
-from .config import Experiment, PluginBlock, RunSpec, load_experiment
 from ..core.sequence import Sequence
+from . import results
+from .config import Experiment, RunSpec
+from .executors import Executor, LocalExecutor
+from .tasks import SequenceResult, Task, as_run_sees_it, base_sequences, make_tasks, plan
 
 
 class ResultsConflict(RuntimeError):
@@ -36,19 +33,6 @@ class SequenceOutcome:
     reason: str = ""
 
 
-def default_jobs() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def sequence_seed(seed: int, name: str) -> np.random.Generator:
-    """Per-sequence generator from (experiment seed, sequence name): results do not depend on
-    the order or the process in which sequences run."""
-    return np.random.default_rng([seed, zlib.crc32(name.encode())])
-
-
 _SEQUENCES: dict[str, list[Sequence]] = {}
 
 
@@ -57,12 +41,7 @@ def load_sequences(spec: RunSpec) -> list[Sequence]:
     applied on the fly when the experiment asks for it. Cached per process."""
     key = json.dumps([spec.resolved["dataset"], spec.resolved["occlusion"], spec.seed], sort_keys=True, default=str)
     if key not in _SEQUENCES:
-        seqs = list(spec.dataset.create().sequences())
-        if spec.occlusion is not None:
-            from ..data.occlusion import augment_sequence
-
-            seqs = [augment_sequence(s, spec.occlusion, spec.seed) for s in seqs]
-        _SEQUENCES[key] = seqs
+        _SEQUENCES[key] = [as_run_sees_it(s, spec) for s in base_sequences(spec)]
     return _SEQUENCES[key]
 
 
@@ -94,70 +73,16 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool) -> Path:
     return out
 
 
-def _create(block: PluginBlock | None) -> Any:
-    return None if block is None else block.create()
-
-
-def run_one(exp: Experiment, spec: RunSpec, seq: Sequence) -> SequenceOutcome:
-    """Run one sequence and write its files; any failure is recorded, never raised."""
-    from .scheduler import run_sequence
-
-    out = run_dir(exp, spec)
+def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
+    """Write one returned result into its run folder (atomically, predictions last)."""
     try:
-        protocol = spec.protocol.create()
-        rng = sequence_seed(spec.seed, seq.name)
-        with spec.tracker.instance() as tracker:
-            blocks = (tracker, _create(spec.egomotion), _create(spec.estimator))
-            if hasattr(protocol, "run_sequence"):  # a protocol that runs the blocks itself (live)
-                run = protocol.run_sequence(seq, *blocks, rng, feedback=spec.feedback)
-            else:  # a timing preset of the camera-clock scheduler
-                run = run_sequence(seq, *blocks, protocol, rng, feedback=spec.feedback)
-        results.write_sequence(out, seq.name, run.boxes, run.frames_csv(), run.trace_csv())
-    except Exception as exc:  # one sequence must never take the others down
-        reason = f"{type(exc).__name__}: {exc}"
-        results.write_failure(out, seq.name, reason, traceback.format_exc())
-        return SequenceOutcome(spec.name, seq.name, "failed", reason)
-    return SequenceOutcome(spec.name, seq.name, "done")
-
-
-# --- worker processes -------------------------------------------------------------------------
-
-_WORKER_EXP: Experiment | None = None
-
-
-def _init_worker(exp_path: str, cwd: str, output: str) -> None:
-    global _WORKER_EXP
-    os.chdir(cwd)
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ[var] = "1"  # one sequence per core: no oversubscription
-    import cv2
-
-    cv2.setNumThreads(1)
-    exp = load_experiment(exp_path)
-    _WORKER_EXP = dataclasses.replace(exp, output=Path(output))  # e.g. `mata-eval run -o DIR`
-
-
-def _worker_task(run_name: str, index: int) -> SequenceOutcome:
-    assert _WORKER_EXP is not None
-    spec = next(r for r in _WORKER_EXP.runs if r.name == run_name)
-    return run_one(_WORKER_EXP, spec, load_sequences(spec)[index])
-
-
-# --- driver -----------------------------------------------------------------------------------
-
-def _run_pool(exp: Experiment, tasks: list, jobs: int,
-              done: Callable[[SequenceOutcome], None]) -> list:
-    """Run ``tasks`` in ``jobs`` worker processes; returns the tasks lost to a broken pool."""
-    lost = []
-    with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
-                             initargs=(str(exp.path), os.getcwd(), str(exp.output))) as pool:
-        futures = {pool.submit(_worker_task, spec.name, i): (spec, i, seq) for spec, i, seq in tasks}
-        for fut in as_completed(futures):
-            try:
-                done(fut.result())
-            except BrokenProcessPool:
-                lost.append(futures[fut])
-    return lost
+        if r.reason:
+            results.write_failure(out, r.sequence, r.reason, r.traceback)
+        else:
+            results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
+    except OSError as exc:  # e.g. disk full: this sequence is lost, the others go on
+        return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")
+    return SequenceOutcome(r.run, r.sequence, "failed" if r.reason else "done", r.reason)
 
 
 def run_experiment(
@@ -168,14 +93,20 @@ def run_experiment(
     only: list[str] | None = None,
     progress: bool = True,
     log: Callable[[str], None] = print,
+    executor: Executor | None = None,
 ) -> list[SequenceOutcome]:
-    """Run every selected run of ``exp`` over its dataset. Returns one outcome per sequence."""
+    """Run every selected run of ``exp`` over its dataset. Returns one outcome per sequence.
+
+    The pending (run, sequence) pairs become tasks, one per sequence with every run that reads
+    it (each frame decoded once for all, :mod:`mata_eval.run.tasks`), longest first, on
+    ``executor`` (default: a local pool of ``jobs`` processes). The executor hands results
+    back and this process writes every file: one writer per run folder, on any executor."""
     specs = [r for r in exp.runs if not only or r.name in only]
     if only and len(specs) != len(set(only)):
         known = ", ".join(r.name for r in exp.runs)
         raise KeyError(f"unknown run name(s) {sorted(set(only) - {r.name for r in specs})}; runs: {known}")
     outcomes: list[SequenceOutcome] = []
-    tasks: list[tuple[RunSpec, int, Sequence]] = []
+    pending: list[tuple[RunSpec, int, Sequence]] = []
     for spec in specs:
         out = prepare_run_dir(exp, spec, force)
         for i, seq in enumerate(load_sequences(spec)):
@@ -184,32 +115,22 @@ def run_experiment(
             if results.is_finished(out, seq.name):
                 outcomes.append(SequenceOutcome(spec.name, seq.name, "skipped"))
             else:
-                tasks.append((spec, i, seq))
+                pending.append((spec, i, seq))
     if outcomes:
         log(f"{len(outcomes)} finished sequence(s) kept from an earlier run (use --force to redo them)")
 
-    jobs = jobs or default_jobs()
-    bar = tqdm(total=len(tasks), desc=exp.name, unit="seq", disable=not progress or not tasks)
+    by_name = {spec.name: spec for spec in specs}
+    bar = tqdm(total=len(pending), desc=exp.name, unit="seq", disable=not progress or not pending)
 
-    def done(outcome: SequenceOutcome) -> None:
-        outcomes.append(outcome)
-        bar.set_postfix_str(f"{outcome.run}/{outcome.sequence}")
-        bar.update()
+    def done(task: Task, task_results: list[SequenceResult]) -> None:
+        for r in task_results:
+            outcomes.append(write_result(run_dir(exp, by_name[r.run]), r))
+            bar.set_postfix_str(f"{r.run}/{r.sequence}")
+            bar.update()
 
     try:
-        if jobs == 1 or len(tasks) <= 1:
-            for spec, _, seq in tasks:
-                done(run_one(exp, spec, seq))
-        else:
-            # A worker killed by the OS (out of memory, a crash in native code) breaks the pool
-            # and every task in flight with it: rerun those one process each, which finds the
-            # sequence that kills its process and records it as failed; the others complete.
-            for spec, i, seq in _run_pool(exp, tasks, jobs, done):
-                if _run_pool(exp, [(spec, i, seq)], 1, done):
-                    reason = ("worker process died while running this sequence (killed by the "
-                              "operating system, e.g. out of memory, or a crash in native code)")
-                    results.write_failure(run_dir(exp, spec), seq.name, reason, "")
-                    done(SequenceOutcome(spec.name, seq.name, "failed", reason))
+        with executor or LocalExecutor(jobs) as ex:
+            ex.run(exp, plan(make_tasks(pending), ex.workers), done)
     finally:
         bar.close()
     for o in outcomes:

@@ -35,7 +35,7 @@ import math
 import time
 from bisect import bisect_right
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, NamedTuple, Protocol
+from typing import Any, Callable, Generator, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
@@ -270,6 +270,28 @@ def run_sequence(
     """Run the blocks over ``sequence`` as ``protocol`` times them (see the module docstring).
 
     ``egomotion`` / ``estimator`` may be None. ``clock`` measures wall time (seconds)."""
+    steps = sequence_steps(sequence, tracker, egomotion, estimator, protocol, rng, feedback, clock=clock)
+    while True:
+        try:
+            next(steps)
+        except StopIteration as stop:
+            return stop.value
+
+
+def sequence_steps(
+    sequence: Sequence,
+    tracker: Any,
+    egomotion: Any,
+    estimator: Any,
+    protocol: ProtocolPreset,
+    rng: np.random.Generator,
+    feedback: bool = True,
+    *,
+    clock: Callable[[], float] = time.perf_counter,
+) -> Generator[int, None, SequenceRun]:
+    """:func:`run_sequence` one frame at a time: yields ``k`` before frame k, returns the
+    :class:`SequenceRun`. Several runs of one sequence advanced in turn ask for frame k one
+    after the other, so they can share its decode (:mod:`mata_eval.run.tasks`)."""
     fps = float(sequence.fps)
     n = len(sequence)
     if n == 0:
@@ -313,6 +335,7 @@ def run_sequence(
     source = np.zeros(n, dtype=int)
 
     for k in range(n):
+        yield k
         tk = k / fps
         if is_delivered[k]:
             trace.append(TraceEvent("camera", "publish", k, tk))

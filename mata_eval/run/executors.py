@@ -1,0 +1,154 @@
+"""Executors: where the tasks of an experiment run. ``local`` (the default) is a process pool on
+this machine; ``ray`` sends the tasks to a Ray cluster (``pip install 'mata-eval[ray]'``).
+
+Both return each task's results to the driver, which writes every file (same atomic writer,
+same resume rules, one writer per run folder): the nodes need the datasets, not the output
+folder. Both retry a task whose worker process died once, then record its sequences failed
+with the reason."""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from typing import Callable, Protocol
+
+from .config import Experiment
+from .tasks import SequenceResult, Task, failed, run_task
+
+Done = Callable[[Task, list[SequenceResult]], None]
+
+WORKER_DIED = ("worker process died while running this sequence (killed by the operating system, "
+               "e.g. out of memory, or a crash in native code); retried once")
+
+
+class Executor(Protocol):
+    """Runs tasks, handing each task's results to ``done`` (in the driver) as it finishes.
+    ``workers``: tasks it runs at once (used to plan the tasks). A context manager: entering
+    starts what it needs, leaving (also on Ctrl-C) stops what it started."""
+
+    workers: int
+
+    def __enter__(self) -> "Executor": ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+    def run(self, exp: Experiment, tasks: list[Task], done: Done) -> None: ...
+
+
+def default_jobs() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def one_thread_per_process() -> None:
+    """One task per core: native libraries must not start a thread per core each."""
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+class LocalExecutor:
+    """Tasks in ``jobs`` worker processes on this machine (in this process when ``jobs`` is 1)."""
+
+    def __init__(self, jobs: int | None = None):
+        self.workers = jobs or default_jobs()
+
+    def __enter__(self) -> "LocalExecutor":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def run(self, exp: Experiment, tasks: list[Task], done: Done) -> None:
+        if self.workers == 1 or len(tasks) <= 1:
+            for task in tasks:
+                done(task, run_task(exp, task))
+            return
+        # A worker killed by the OS breaks the pool and every task in flight with it: rerun those
+        # one process each, which finds the task that kills its process; the others complete.
+        for task in self._pool(exp, tasks, self.workers, done):
+            if self._pool(exp, [task], 1, done):
+                done(task, failed(task, WORKER_DIED))
+
+    @staticmethod
+    def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> list[Task]:
+        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool."""
+        lost = []
+        with ProcessPoolExecutor(max_workers=jobs, initializer=one_thread_per_process) as pool:
+            futures = {pool.submit(run_task, exp, task): task for task in tasks}
+            for fut in as_completed(futures):
+                try:
+                    results = fut.result()
+                except BrokenProcessPool:
+                    lost.append(futures[fut])
+                    continue
+                done(futures[fut], results)
+        return lost
+
+
+class RayExecutor:
+    """Tasks on a Ray cluster: ``address`` ``"auto"`` (the cluster this node belongs to),
+    ``"ray://HOST:PORT"`` (Ray Client), or None for a local cluster of ``cpus`` CPUs (default:
+    all). One CPU per task; a task whose worker dies is retried once by Ray
+    (``max_retries=1``)."""
+
+    def __init__(self, address: str | None = None, cpus: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise ImportError("needs Ray, which is not installed: pip install 'mata-eval[ray]'") from None
+        self.ray = ray
+        self.address, self.cpus = address, cpus
+        self.started = False
+        self.workers = 1
+
+    def __enter__(self) -> "RayExecutor":
+        ray = self.ray
+        if not ray.is_initialized():
+            ray.init(address=self.address, num_cpus=None if self.address else self.cpus,
+                     include_dashboard=False, logging_level="warning", log_to_driver=False)
+            self.started = True
+        self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.started:
+            self.ray.shutdown()
+            self.started = False
+
+    def run(self, exp: Experiment, tasks: list[Task], done: Done) -> None:
+        ray = self.ray
+        remote = ray.remote(num_cpus=1, max_retries=1)(_ray_task)
+        exp_ref = ray.put(exp)
+        pending = {remote.remote(exp_ref, task): task for task in tasks}
+        try:
+            while pending:
+                ready, _ = ray.wait(list(pending), num_returns=1)
+                for ref in ready:
+                    task = pending.pop(ref)
+                    done(task, self._results(ref, task))
+        except BaseException:  # Ctrl-C, SIGTERM: nothing keeps running on the cluster
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
+
+    def _results(self, ref, task: Task) -> list[SequenceResult]:
+        from ray.exceptions import RayTaskError
+
+        try:
+            return self.ray.get(ref)
+        except RayTaskError as exc:  # run_task raised (it records block failures itself)
+            return failed(task, f"task raised on the cluster: {exc.cause!r}", str(exc))
+        except Exception as exc:  # the worker or its node died twice, the object was lost, ...
+            return failed(task, f"Ray worker died while running this sequence, retried once: "
+                                f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
+
+
+def _ray_task(exp: Experiment, task: Task) -> list[SequenceResult]:
+    one_thread_per_process()
+    return run_task(exp, task)

@@ -1,0 +1,186 @@
+"""The Ray executor on a local Ray cluster (2 CPUs, started once for this module): the same
+files as the local executor, a task whose worker dies is retried once, then recorded failed,
+and Ctrl-C cancels what is still queued or running on the cluster."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import textwrap
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray", reason="ray is not installed (pip install 'mata-eval[ray]')")
+
+from mata_eval.core.registry import PluginEntry, Registry, load_registry  # noqa: E402
+from mata_eval.core.sequence import Sequence  # noqa: E402
+from mata_eval.params import param  # noqa: E402
+from mata_eval.run.config import load_experiment  # noqa: E402
+from mata_eval.run.executors import RayExecutor  # noqa: E402
+from mata_eval.run.runner import run_experiment  # noqa: E402
+from mata_eval.types import Box, TrackerOutput  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a throw-away cluster on this machine
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="error", log_to_driver=False)
+    # The workers cannot import this test module: send its toy plugins by value.
+    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    yield
+    ray.shutdown()
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+def test_ray_writes_the_same_files_as_the_local_executor(cluster, tmp_path, monkeypatch):
+    reg = load_registry()
+    if "synthetic" not in reg.plugins["dataset"] or "kcf" not in reg.plugins["tracker"] \
+            or "grid_lk" not in reg.plugins["egomotion"] or "homography_ekf" not in reg.plugins["estimator"]:
+        pytest.skip("the synthetic dataset or the kcf, grid_lk, homography_ekf plugins are not installed")
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))  # the Ray workers inherit it
+    p = tmp_path / "exp.yaml"
+    p.write_text(textwrap.dedent("""\
+        dataset: {name: synthetic, n_sequences: 3, n_frames: 10, width: 160, height: 96, jobs: 1}
+        tracker: {name: kcf}
+        egomotion: {name: grid_lk}
+        estimator: {name: homography_ekf}
+        matrix:
+          mata:
+            baseline: {egomotion: null, estimator: null}
+            mata: {}
+        """))
+    exp = load_experiment(p)
+    exp.runs[0].dataset.create().ensure()  # generate the suite once, before either executor
+    local = run_experiment(_with_output(exp, tmp_path / "local"), jobs=1, progress=False, log=_quiet)
+    remote = run_experiment(_with_output(exp, tmp_path / "ray"), executor=RayExecutor(), progress=False,
+                            log=_quiet)
+    assert sorted((o.run, o.sequence, o.status) for o in remote) == \
+        sorted((o.run, o.sequence, o.status) for o in local)
+    assert len(local) == 6 and {o.status for o in local} == {"done"}
+    for path in sorted((tmp_path / "local").rglob("*")):
+        if path.suffix in (".txt", ".csv") and not path.name.endswith(".frames.csv"):  # frames.csv: wall times
+            twin = tmp_path / "ray" / path.relative_to(tmp_path / "local")
+            assert twin.read_bytes() == path.read_bytes(), path
+
+
+def _with_output(exp, out: Path):
+    import dataclasses
+
+    return dataclasses.replace(exp, output=out)
+
+
+class Toy:
+    """Two 5-frame sequences."""
+
+    name = "toy5"
+
+    @dataclass(frozen=True)
+    class Params:
+        n: int = param(5, "frames")
+
+    def __init__(self, params):
+        self.params = params
+
+    def sequences(self):
+        gt = np.array([[10.0, 10.0, 8.0, 8.0]] * self.params.n)
+        return [Sequence(name, gt, 30.0, loader=lambda k: np.zeros((24, 32, 3), np.uint8)) for name in ("a", "b")]
+
+
+class Killer:
+    """Kills its own worker process (as the OS does on out of memory) on sequence ``a`` while
+    fewer than ``kills`` files are in ``folder``, one file per death; sleeps ``sleep_s`` per call."""
+
+    name = "killer"
+
+    @dataclass(frozen=True)
+    class Params:
+        folder: str = param("", "where to count the deaths")
+        kills: int = param(0, "deaths before it stops killing")
+        sleep_s: float = param(0.0, "seconds per call")
+
+    def __init__(self, params):
+        self.params = params
+
+    def initialize(self, image, box):
+        self.box = box
+        folder = Path(self.params.folder)
+        if box.x == 10.0 and len(list(folder.glob("death*"))) < self.params.kills:
+            (folder / f"death{os.getpid()}").touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+
+    def track(self, image, prior=None):
+        time.sleep(self.params.sleep_s)
+        return TrackerOutput(self.box, 1.0)
+
+
+class ToyB(Toy):
+    name = "toy5b"
+
+    def sequences(self):
+        a, b = super().sequences()
+        return [a, Sequence("b", b.groundtruth + [5.0, 0, 0, 0], 30.0, loader=b.loader)]
+
+
+def _toy_experiment(tmp_path, tracker: str):
+    real = load_registry()
+    if "ltp" not in real.plugins["protocol"]:
+        pytest.skip("the ltp protocol plugin is not installed")
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
+    reg = Registry({"dataset": {"toy5b": entry("dataset", ToyB)}, "tracker": {"killer": entry("tracker", Killer)},
+                    "egomotion": {}, "estimator": {}, "protocol": real.plugins["protocol"]}, ())
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: toy5b}}\ntracker: {tracker}\n")
+    return load_experiment(p, reg)
+
+
+@pytest.mark.parametrize("kills, status", [(1, "done"), (5, "failed")])
+def test_a_task_whose_worker_dies_is_retried_once(cluster, tmp_path, kills, status):
+    exp = _toy_experiment(tmp_path, f"{{name: killer, folder: {tmp_path}, kills: {kills}}}")
+    outcomes = {o.sequence: o for o in run_experiment(exp, executor=RayExecutor(), progress=False, log=_quiet)}
+    assert outcomes["b"].status == "done", outcomes["b"].reason
+    assert outcomes["a"].status == status
+    # One death, then the retry; or two deaths (the first try and its one retry), then failed.
+    assert len(list(tmp_path.glob("death*"))) == (1 if status == "done" else 2)
+    if status == "failed":
+        assert "retried once" in outcomes["a"].reason
+        assert (tmp_path / "out" / "exp" / "a.failed.json").is_file()
+    else:
+        assert (tmp_path / "out" / "exp" / "a.txt").is_file()
+
+
+def test_ctrl_c_cancels_the_tasks_on_the_cluster(cluster, tmp_path):
+    """Interrupted while both tasks run (each needs 4 x 0.5 s): both are cancelled, nothing is
+    written, and the cluster is free again at once."""
+    exp = _toy_experiment(tmp_path, "{name: killer, sleep_s: 0.5}")
+    executor = RayExecutor()
+
+    def interrupt(task, results):
+        raise AssertionError("no task should finish")
+
+    with executor:
+        started = time.monotonic()
+        import threading
+
+        threading.Timer(0.8, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+        with pytest.raises(KeyboardInterrupt):
+            from mata_eval.run.tasks import make_tasks
+            from mata_eval.run.runner import load_sequences
+
+            spec = exp.runs[0]
+            tasks = make_tasks([(spec, i, s) for i, s in enumerate(load_sequences(spec))])
+            executor.run(exp, tasks, interrupt)
+        assert time.monotonic() - started < 2.0
+
+        @ray.remote(num_cpus=2)
+        def free() -> bool:
+            return True
+
+        assert ray.get(free.remote(), timeout=10)  # both CPUs are free again
