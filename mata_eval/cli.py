@@ -388,7 +388,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         _set_threads(args.threads)
     try:
         profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
-                              experiment=str(exp.path))
+                              experiment=str(exp.path), time_scale=_time_scales(args.time_scale))
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -400,6 +400,24 @@ def cmd_profile(args: argparse.Namespace) -> int:
     print(summary_table(profile))
     print(f"timing profile: {path}  (eop: latency_profile: {path}, tracker_hz: profile, tracker_latency: profile)")
     return 0
+
+
+def _time_scales(items: list[str] | None) -> dict[str, float]:
+    """``--time-scale 20`` (every block) / ``--time-scale tracker=20`` (repeatable) -> block -> factor."""
+    from .run.scheduler import BLOCKS
+
+    out: dict[str, float] = {}
+    for item in items or []:
+        block, _, value = item.rpartition("=")
+        try:
+            factor = float(value)
+        except ValueError:
+            factor = float("nan")
+        if block not in ("",) + BLOCKS or not factor > 0:
+            raise ValueError(f"--time-scale {item!r}: expected FACTOR or BLOCK=FACTOR with a factor > 0 and a "
+                             f"block in {', '.join(BLOCKS)}")
+        out.update({b: factor for b in BLOCKS} if not block else {block: factor})
+    return out
 
 
 def _set_threads(n: int) -> None:
@@ -549,6 +567,9 @@ def _add_profile(subparsers) -> None:
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
     p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
     p.add_argument("--threads", type=int, default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
+    p.add_argument("--time-scale", action="append", metavar="[BLOCK=]FACTOR",
+                   help="multiply the measured latencies (of one block, or all): the profile of a device FACTOR "
+                        "times slower, as the live protocol's time_scale emulates (repeatable)")
     p.add_argument("--out", required=True, help="timing profile file to write (.json, .yaml)")
     p.set_defaults(func=cmd_profile)
 

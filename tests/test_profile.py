@@ -246,3 +246,27 @@ def test_machine_description_of_a_jetson(monkeypatch):
     assert m["power_mode"] == "NV Power Mode: MODE_30W 2"
     files["/proc/cpuinfo"] = "processor\t: 0\nmodel name\t: AMD EPYC 7B13\n"
     assert prof.cpu_model() == "AMD EPYC 7B13"
+
+
+def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monkeypatch):
+    path = tmp_path / "exp.yaml"
+    path.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: frames, n: 12}}
+        tracker: {{name: sleeper, sleep_s: 0.02}}
+        protocol: {{name: eop}}
+        """))
+    import mata_eval.run.config as config
+
+    real_load = config.load_experiment
+    monkeypatch.setattr(config, "load_experiment", lambda p, registry=None: real_load(p, _registry()))
+    parser = build_parser()
+    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "p.json"), "--frames", "5",
+                              "--warmup", "1", "--time-scale", "tracker=5"])
+    assert args.func(args) == 0
+    prof = read_profile(tmp_path / "p.json")
+    assert 0.1 <= prof.block("tracker").percentiles_s((50,))["50"] < 0.175  # 5 x (20 ms + overshoot)
+    assert prof.machine["time_scale"] == {"tracker": 5.0}
+    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--time-scale", "camera=2"])
+    assert args.func(args) == 2
+    assert "--time-scale 'camera=2': expected FACTOR or BLOCK=FACTOR" in capsys.readouterr().err

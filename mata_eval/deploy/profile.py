@@ -197,9 +197,11 @@ def time_blocks(sequence: Any, tracker: Any, egomotion: Any = None, estimator: A
 
 def profile_run(spec: Any, *, frames: int = DEFAULT_FRAMES, warmup: int = DEFAULT_WARMUP,
                 sequence: str | None = None, clock: Callable[[], float] = time.perf_counter,
-                experiment: str | None = None) -> TimingProfile:
+                experiment: str | None = None, time_scale: dict[str, float] | None = None) -> TimingProfile:
     """Time the blocks of one run (a :class:`mata_eval.run.config.RunSpec`) on one sequence of its
-    dataset (the first, or the one named) and build the timing profile."""
+    dataset (the first, or the one named) and build the timing profile. ``time_scale``: block ->
+    factor on its measured latencies, the profile of a device that many times slower (what the
+    ``live`` and ``vot_rt`` protocols' ``time_scale`` emulate); recorded in ``machine``."""
     from ..run.runner import load_sequences
 
     seqs = load_sequences(spec)
@@ -217,7 +219,12 @@ def profile_run(spec: Any, *, frames: int = DEFAULT_FRAMES, warmup: int = DEFAUL
     with spec.tracker.instance() as tracker:
         samples = time_blocks(seq, tracker, create(spec.egomotion), create(spec.estimator),
                               frames=frames, warmup=warmup, clock=clock)
+    for block, factor in (time_scale or {}).items():
+        if block in samples:
+            samples[block] = samples[block] * factor
     machine = describe_machine()
+    if time_scale:
+        machine["time_scale"] = dict(time_scale)
     machine["run"] = {"experiment": experiment, "run": spec.name, "sequence": seq.name, "frames": frames,
                       "warmup": warmup, **{k: spec.resolved.get(k) for k in ("tracker", "egomotion", "estimator")}}
     created = datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
