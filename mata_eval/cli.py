@@ -568,8 +568,10 @@ def _add_profile(subparsers) -> None:
     p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
     p.add_argument("--threads", type=int, default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
     p.add_argument("--time-scale", action="append", metavar="[BLOCK=]FACTOR",
-                   help="multiply the measured latencies (of one block, or all): the profile of a device FACTOR "
-                        "times slower, as the live protocol's time_scale emulates (repeatable)")
+                   help="the profile of a device FACTOR times slower (one block, or all), as the live protocol's "
+                        "time_scale emulates it: latencies multiplied by FACTOR, and every block run at the "
+                        "duty cycle live gives it (a pause of FACTOR-1 times each call, at most one call per "
+                        "camera frame) instead of back to back (repeatable; 1 = this machine, paced)")
     p.add_argument("--out", required=True, help="timing profile file to write (.json, .yaml)")
     p.set_defaults(func=cmd_profile)
 

@@ -90,3 +90,35 @@ def test_eval_report_timeline_and_profile_work_on_a_live_run(live_run, dataset, 
     assert main(["profile", str(exp_file), "--frames", "5", "--warmup", "1",
                  "--out", str(tmp_path / "p.json")]) == 0
     assert set(json.loads((tmp_path / "p.json").read_text())["blocks"]) == {"tracker", "egomotion", "estimator"}
+
+
+def test_ctrl_c_stops_mata_eval_run_cleanly(dataset, tmp_path):
+    """SIGINT to `mata-eval run` in the middle of a live sequence (a 5 fps camera: 4.8 s): the
+    process ends within a second or two, and the interrupted sequence is not marked finished."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    exp_file = tmp_path / "slow.yaml"
+    exp_file.write_text(textwrap.dedent(f"""
+        output: {tmp_path / 'results'}
+        dataset: {{name: folder, root: {dataset}, fps: 5}}
+        tracker: {{name: kcf}}
+        egomotion: {{name: grid_lk}}
+        estimator: {{name: homography_ekf}}
+        protocol: {{name: live, time_scale: {{tracker: 20}}}}
+    """))
+    proc = subprocess.Popen([sys.executable, "-m", "mata_eval", "run", str(exp_file), "-j", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    run = tmp_path / "results" / "slow"
+    deadline = time.monotonic() + 60
+    while not (run / "manifest.json").is_file() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.5)  # the camera is running
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=20)
+    assert time.monotonic() - t0 < 3.0
+    assert proc.returncode != 0
+    assert not (run / "glide.txt").exists() and not (run / "glide.trace.csv").exists()
