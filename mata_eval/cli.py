@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from . import __version__
-from .core.errors import ConfigError
+from .core.errors import ConfigError, Interrupted, UserError
 
 #: file extension of each table format written by ``mata-eval report --out``
 EXTENSIONS = {"terminal": "txt", "markdown": "md", "csv": "csv", "latex": "tex"}
@@ -66,21 +66,20 @@ def _executor(args: argparse.Namespace) -> Any:
 
 def cmd_run(args: argparse.Namespace) -> int:
     from .run.config import load_experiment
-    from .run.runner import ResultsConflict, run_experiment
+    from .run.runner import run_experiment
     from .score.evaluate import evaluate_experiment
 
     exp = load_experiment(args.experiment)
     if args.output:
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
     print(f"experiment {exp.name}: {len(exp.runs)} run(s) -> {exp.output}")
-    try:
-        outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,
-                                  progress=not args.quiet, executor=_executor(args))
-    except ResultsConflict as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,
+                              progress=not args.quiet, executor=_executor(args))
+    failed = [o for o in outcomes if o.status == "failed"]
+    if failed:  # printed before the table too: the table does not show what is missing from it
+        print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json", file=sys.stderr)
     if args.no_report:
-        return 0
+        return 1 if failed else 0
     from .report.overview import render_table
     from .report.plots import plot_curves
 
@@ -96,10 +95,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     plots = plot_curves(scores, exp.output / "report")
     for p in plots:
         print(f"plot: {p}")
-    failed = [o for o in outcomes if o.status == "failed"]
     if failed:
         print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json")
-    return 1 if failed and len(failed) == len(outcomes) else 0
+    return 1 if failed else 0
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -167,7 +165,12 @@ def cmd_eval(args: argparse.Namespace) -> int:
         if layout == "mata" or (layout == "auto" and detect_layout(Path(args.results_dir)) == "mata"):
             scores = evaluate_results(args.results_dir, seqs, args.profile, layout="mata")
             if not args.no_save:
-                print(f"wrote {save_scores(args.results_dir, scores)}")
+                try:
+                    print(f"wrote {save_scores(args.results_dir, scores)}")
+                except OSError as exc:
+                    print(f"error: cannot write scores.json into {args.results_dir} ({exc.strerror}); "
+                          f"use --no-save, or --output DIR to write it elsewhere", file=sys.stderr)
+                    return 2
         else:
             scores = evaluate_results(args.results_dir, seqs, args.profile, layout=layout, name=args.name)
     except (FileNotFoundError, ValueError, KeyError) as exc:
@@ -606,6 +609,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Evaluate and run single-object trackers on UAVs as they run on board: "
                     "MATA (tracker + ego-motion + homography EKF), the EOP protocol and NT2F.")
     parser.add_argument("--version", action="version", version=f"mata-eval {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("list", help="list installed plugins by kind")
@@ -661,12 +665,25 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    except Interrupted as exc:  # SIGINT / SIGTERM during a run: the workers are stopped
+        done = sum(o.status == "done" for o in exc.outcomes)
+        print(f"interrupted ({exc}): {done} sequence(s) finished in this run are saved; "
+              "rerun the same command to resume", file=sys.stderr)
+        return exc.exit_status
     except KeyboardInterrupt:
         print("interrupted: finished sequences are saved; rerun the same command to resume", file=sys.stderr)
         return 130
+    except (UserError, OSError) as exc:  # a mistake to fix, or a file that cannot be read or written
+        if args.debug:
+            raise
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.filename:
+        return f"{exc.filename}: {exc.strerror or exc} (--debug shows the traceback)"
+    return " ".join(str(exc).split())
 
 
 if __name__ == "__main__":

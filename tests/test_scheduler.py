@@ -56,7 +56,7 @@ class FrameTracker:
         if k == self.fail_at:
             raise ValueError("boom")
         x = math.nan if k == self.nan_at else float(k)
-        return TrackerOutput(Box(x, 0.0, 10.0, 10.0), confidence=k / 100.0)
+        return TrackerOutput(Box(x, 0.0, 10.0, 10.0), confidence=k / 1000.0)  # in [0, 1] up to frame 1000
 
 
 class FrameEgoMotion:
@@ -119,7 +119,7 @@ def test_5hz_tracker_starts_every_sixth_frame_and_is_scored_one_period_later():
     expected = np.repeat([-1, -1, 6, 12, 18], 6)  # init box held until frame 6's result at 12
     np.testing.assert_array_equal(x, expected)
     assert np.all(np.isnan(run.confidence[:12]))
-    np.testing.assert_allclose(run.confidence[12:], np.repeat([0.06, 0.12, 0.18], 6))
+    np.testing.assert_allclose(run.confidence[12:], np.repeat([0.006, 0.012, 0.018], 6))
     np.testing.assert_array_equal(run.source_frame, expected.clip(0))
     assert reads == [0, 6, 12, 18, 24]  # images read only where a block starts
     assert run.rates_hz["tracker"] == pytest.approx(5.0)

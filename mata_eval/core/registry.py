@@ -16,6 +16,7 @@ import os
 import re
 import sys
 import traceback
+import warnings
 
 import pluggy
 
@@ -125,6 +126,26 @@ def load_registry() -> Registry:
                 failures.append(LoadFailure(impl.plugin_name, package, f"{hook_name}() raised {exc!r}"))
                 continue
             for cls in classes:
-                name = getattr(cls, "name", cls.__name__)
-                plugins[kind][name] = PluginEntry(kind, name, cls, package, describe_line(cls))
+                entry = PluginEntry(kind, getattr(cls, "name", cls.__name__), cls, package, describe_line(cls))
+                failure = _add(plugins[kind], entry)
+                if failure:  # also said at once: `list` is not the only place a user looks
+                    failures.append(failure)
+                    warnings.warn(f"plugin {failure.entry_point} of {failure.package}: {failure.error}")
     return Registry(plugins, tuple(failures))
+
+
+BUILTIN = "mata-eval"
+
+
+def _add(names: dict[str, PluginEntry], entry: PluginEntry) -> LoadFailure | None:
+    """Register ``entry`` unless its name is taken; a built-in plugin keeps its name (a
+    third-party ``kcf`` must not replace the built-in one without a word). Returns the loser."""
+    old = names.get(entry.name)
+    if old is None:
+        names[entry.name] = entry
+        return None
+    keep, drop = (entry, old) if entry.package == BUILTIN and old.package != BUILTIN else (old, entry)
+    names[entry.name] = keep
+    return LoadFailure(f"{drop.kind} {drop.name!r}", drop.package,
+                       f"not used: the name is taken by {keep.cls.__module__}.{keep.cls.__qualname__} "
+                       f"[{keep.package}]; give the plugin another `name`")

@@ -12,7 +12,29 @@ from .types import Box, Frame
 
 
 class FrameReadError(RuntimeError):
-    """A frame could not be read (missing or corrupt file)."""
+    """A frame could not be read (missing, truncated or corrupt file)."""
+
+
+JPEG_START, JPEG_END = b"\xff\xd8", b"\xff\xd9"
+
+
+def read_image(path: str) -> np.ndarray:
+    """The image file ``path`` as a BGR uint8 array, decoded by OpenCV (as ``cv2.imread``).
+
+    Raises :class:`FrameReadError` for a file that is missing, does not decode, or is a JPEG
+    without its end marker: OpenCV decodes a truncated JPEG into a grey-filled image and only
+    prints "Premature end of JPEG file", which would score a corrupted frame silently."""
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise FrameReadError(f"cannot read {path}: {exc.strerror or exc}") from None
+    head = data[:2].tobytes()
+    if head == JPEG_START and JPEG_END not in data[-64:].tobytes():  # padding may follow the marker
+        raise FrameReadError(f"{path}: truncated JPEG (no end-of-image marker)")
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if img is None:
+        raise FrameReadError(f"{path}: cannot decode the image")
+    return img
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,11 +79,10 @@ class Sequence:
             return self.loader(k)
         if not self.frame_paths:
             raise FrameReadError(f"sequence {self.name!r} was loaded without frames (annotations only)")
-        path = self.frame_paths[k]
-        img = cv2.imread(path, cv2.IMREAD_COLOR)
-        if img is None:
-            raise FrameReadError(f"cannot read frame {k} of sequence {self.name!r}: {path}")
-        return img
+        try:
+            return read_image(self.frame_paths[k])
+        except FrameReadError as exc:
+            raise FrameReadError(f"frame {k} of sequence {self.name!r}: {exc}") from None
 
     def frames(self) -> Iterator[Frame]:
         """Frames with their camera times ``t = k / fps``; images load on first access."""

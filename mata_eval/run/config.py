@@ -46,14 +46,21 @@ import yaml
 from ..core.errors import ConfigError
 from ..core.params import build_params
 from ..core.registry import Registry, load_registry
+from .results import is_file_name
 
 PLUGIN_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")  # = plugin kinds
 NULLABLE = {"egomotion", "estimator", "occlusion"}
 TOP_LEVEL = {"name", "description", "seed", "output", "dataset", "occlusion", "tracker",
-             "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix"}
+             "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix", "timeout_s",
+             "on_bad_frame"}
 DEFAULTS: dict[str, Any] = {"seed": 0, "egomotion": None, "estimator": None, "occlusion": None,
                             "feedback": True, "protocol": {"name": "ltp"},
-                            "metrics": {"profile": "default"}}
+                            "metrics": {"profile": "default"}, "timeout_s": 60.0, "on_bad_frame": "fail"}
+BAD_FRAME_POLICIES = ("fail", "skip")
+#: Experiment files hold settings, not data: larger files and alias expansions are refused
+#: before anything is built from them (a 9 x 9 alias "bomb" expands to 387 million nodes).
+MAX_FILE_BYTES = 1_000_000
+MAX_NODES = 100_000
 METRICS_KEYS = {"profile"}
 
 KeyPath = tuple  # of str | int
@@ -100,6 +107,8 @@ class RunSpec:
     feedback: bool
     metrics_profile: str
     resolved: dict  # the fully resolved configuration, as written to the manifest
+    timeout_s: float | None = 60.0  # limit of one block call (not in the hash: results do not depend on it)
+    on_bad_frame: str = "fail"  # or "skip": an unreadable frame is excluded from scoring and counted
 
     @property
     def config_hash(self) -> str:
@@ -121,6 +130,15 @@ class _SafeLoader(yaml.SafeLoader):
 
 
 def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:  # before merging: a key after ``<<: *base`` overrides it
+        if isinstance(key_node, yaml.ScalarNode) and key_node.tag != "tag:yaml.org,2002:merge":
+            line = key_node.start_mark.line + 1
+            if key_node.value in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key_node.value!r} (first on line {seen[key_node.value]}); "
+                                "remove one of them", key_node.start_mark)
+            seen[key_node.value] = line
     loader.flatten_mapping(node)
     out = {}
     for key_node, value_node in node.value:
@@ -163,20 +181,62 @@ class _Locator:
         return f"{self.path}:{line}" if line else str(self.path)
 
 
+def _check_expansion(root: yaml.Node | None, path: Path) -> None:
+    """Refuse a document whose aliases expand to more than ``MAX_NODES`` nodes, or refer to
+    themselves, before anything walks or builds it (PyYAML shares aliased nodes; every later
+    step would expand them). Counted with one visit per distinct node."""
+    sizes: dict[int, int | None] = {}
+
+    def size(node: yaml.Node) -> int:
+        key = id(node)
+        if key in sizes:
+            if sizes[key] is None:
+                raise ConfigError(f"{path}:{node.start_mark.line + 1}", (), "an alias refers to the node that holds it")
+            return sizes[key]
+        sizes[key] = None
+        n = 1
+        if isinstance(node, yaml.MappingNode):
+            n += sum(size(k) + size(v) for k, v in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            n += sum(size(v) for v in node.value)
+        if n > MAX_NODES:
+            raise ConfigError(f"{path}:{node.start_mark.line + 1}", (),
+                              f"aliases expand to more than {MAX_NODES} nodes; write the values out instead")
+        sizes[key] = n
+        return n
+
+    if root is not None:
+        size(root)
+
+
+def _check_folder_name(name: str, locate: _Locator, kp: KeyPath) -> None:
+    """Run names and matrix labels name folders inside the output folder: one name, no path."""
+    if not is_file_name(name):
+        raise ConfigError(locate(kp), kp, f"expected one folder name (no '/', no '..', not absolute), "
+                                          f"got {name!r}: the run's results go to <output>/<name>")
+
+
 def load_experiment(path: str | Path, registry: Registry | None = None) -> Experiment:
     """Read, expand and validate an experiment file."""
     path = Path(path)
     try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            raise ConfigError(str(path), (), f"the file is {size / 1e6:.1f} MB; the limit is "
+                                             f"{MAX_FILE_BYTES / 1e6:g} MB (experiment files hold settings, not data)")
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(str(path), (), f"cannot read experiment file: {exc.strerror}") from None
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
+        _check_expansion(root, path)
         doc = yaml.load(text, Loader=_SafeLoader)  # safe: a SafeLoader with string keys
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark else str(path)
         raise ConfigError(where, (), f"not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    except RecursionError:
+        raise ConfigError(str(path), (), "not valid YAML: nested too deeply") from None
     locate = _Locator(path, root)
     if not isinstance(doc, dict):
         raise ConfigError(locate(()), (), "expected a mapping of experiment keys at the top level")
@@ -184,6 +244,8 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
         if key not in TOP_LEVEL:
             raise ConfigError(locate((key,)), (key,),
                               f"unknown key; expected one of: {', '.join(sorted(TOP_LEVEL))}")
+    if doc.get("name") is not None:
+        _check_folder_name(str(doc["name"]), locate, ("name",))
     registry = registry or load_registry()
 
     base = {k: v for k, v in doc.items() if k != "matrix"}
@@ -217,6 +279,8 @@ def _expand(doc: dict, base: dict, origin: dict, locate: _Locator):
         kp = ("matrix", axis)
         if not isinstance(options, dict) or not options:
             raise ConfigError(locate(kp), kp, "expected a mapping of labels to overrides")
+        for label in options:
+            _check_folder_name(str(label), locate, kp + (label,))
         axes.append([(axis, str(label), value) for label, value in options.items()])
     for combo in itertools.product(*axes):
         config = copy.deepcopy(base)
@@ -312,8 +376,20 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
         raise ConfigError(where(("metrics", "profile")), ("metrics", "profile"),
                           f"unknown metric profile {profile!r}; available: {', '.join(sorted(PROFILES))}")
     resolved.update(seed=seed, feedback=feedback, metrics={"profile": profile})
+    timeout = cfg["timeout_s"]
+    if timeout is not None and (isinstance(timeout, bool) or not isinstance(timeout, (int, float))
+                                or not 0 < timeout < float("inf")):
+        raise ConfigError(where(("timeout_s",)), ("timeout_s",),
+                          f"expected seconds > 0 for one block call, or null for no limit, got {timeout!r}")
+    on_bad = cfg["on_bad_frame"]
+    if on_bad not in BAD_FRAME_POLICIES:
+        raise ConfigError(where(("on_bad_frame",)), ("on_bad_frame",),
+                          f"expected one of {', '.join(BAD_FRAME_POLICIES)}, got {on_bad!r}")
+    if on_bad != "fail":  # only then: the hash of every earlier run folder stays the same
+        resolved["on_bad_frame"] = on_bad
     return RunSpec(run_name, seed, blocks["dataset"], blocks["tracker"], blocks["egomotion"],
-                   blocks["estimator"], blocks["protocol"], occlusion, feedback, profile, resolved)
+                   blocks["estimator"], blocks["protocol"], occlusion, feedback, profile, resolved,
+                   None if timeout is None else float(timeout), on_bad)
 
 
 def _plugin_block(kind: str, value: Any, where, registry: Registry) -> PluginBlock | None:

@@ -8,7 +8,10 @@ with the reason."""
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
+import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Protocol
@@ -52,6 +55,23 @@ def one_thread_per_process() -> None:
     cv2.setNumThreads(1)
 
 
+def _local_worker() -> None:
+    """A local worker ignores Ctrl-C (the driver stops it: SIGINT to the process group must not
+    fail the sequence it runs) and dies with the driver."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _die_with_parent()
+    one_thread_per_process()
+
+
+def _die_with_parent() -> None:
+    """Linux: ask the kernel to SIGKILL this process when its parent ends, even by ``kill -9``
+    (``prctl(PR_SET_PDEATHSIG)``; no library wraps it, and polling the parent cannot interrupt
+    a block that is running). Elsewhere a worker outlives a killed driver until its task ends."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+
+
 class LocalExecutor:
     """Tasks in ``jobs`` worker processes on this machine (in this process when ``jobs`` is 1)."""
 
@@ -77,9 +97,12 @@ class LocalExecutor:
 
     @staticmethod
     def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> list[Task]:
-        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool."""
+        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool. On any
+        exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the workers
+        terminated, so that it propagates at once (leaving the pool would wait for every task)."""
         lost = []
-        with ProcessPoolExecutor(max_workers=jobs, initializer=one_thread_per_process) as pool:
+        pool = ProcessPoolExecutor(max_workers=jobs, initializer=_local_worker)
+        try:
             futures = {pool.submit(run_task, exp, task): task for task in tasks}
             for fut in as_completed(futures):
                 try:
@@ -88,6 +111,16 @@ class LocalExecutor:
                     lost.append(futures[fut])
                     continue
                 done(futures[fut], results)
+        except BaseException:
+            workers = list((pool._processes or {}).values())  # no public handle before Python 3.14
+            pool.shutdown(wait=False, cancel_futures=True)
+            for w in workers:
+                w.terminate()
+            for w in workers:
+                w.join(5)
+            raise
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
         return lost
 
 

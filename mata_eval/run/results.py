@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.errors import UserError
+
 MANIFEST = "manifest.json"
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -48,8 +50,25 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+class UnsafeName(UserError, ValueError):
+    """A run or sequence name that would put a file outside its folder."""
+
+
+def is_file_name(name: str) -> bool:
+    """One file or folder name: not empty, not ``.`` or ``..``, no separator."""
+    return name not in ("", ".", "..") and not any(c in name for c in "/\\\0")
+
+
+def inside(folder: Path, name: str, suffix: str = "") -> Path:
+    """``folder / (name + suffix)``, refusing a name that is not one file name (a run or
+    sequence name like ``../../x`` or ``/abs`` would write outside the output folder)."""
+    if not is_file_name(name):
+        raise UnsafeName(f"{name!r} is not a single file name; refusing to write outside {folder}")
+    return Path(folder) / f"{name}{suffix}"
+
+
 def predictions_path(run_dir: Path, seq: str) -> Path:
-    return Path(run_dir) / f"{seq}.txt"
+    return inside(run_dir, seq, ".txt")
 
 
 def is_finished(run_dir: Path, seq: str) -> bool:
@@ -81,28 +100,46 @@ def read_predictions(path: Path) -> np.ndarray:
 
 def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, trace_csv: str) -> None:
     """Write one finished sequence: sidecars first, predictions last (the completion mark)."""
-    run_dir = Path(run_dir)
-    atomic_write_text(run_dir / f"{seq}.frames.csv", frames_csv)
-    atomic_write_text(run_dir / f"{seq}.trace.csv", trace_csv)
-    (run_dir / f"{seq}.failed.json").unlink(missing_ok=True)
+    atomic_write_text(inside(run_dir, seq, ".frames.csv"), frames_csv)
+    atomic_write_text(inside(run_dir, seq, ".trace.csv"), trace_csv)
+    inside(run_dir, seq, ".failed.json").unlink(missing_ok=True)
     atomic_write_text(predictions_path(run_dir, seq), format_predictions(boxes))
 
 
 def write_failure(run_dir: Path, seq: str, reason: str, tb: str) -> None:
-    write_json(Path(run_dir) / f"{seq}.failed.json", {"sequence": seq, "reason": reason, "traceback": tb})
+    write_json(inside(run_dir, seq, ".failed.json"), {"sequence": seq, "reason": reason, "traceback": tb})
+
+
+def write_bad_frames(run_dir: Path, seq: str, bad: dict[int, str]) -> None:
+    """``<seq>.bad_frames.json``: the frames excluded from scoring (``on_bad_frame: skip``)."""
+    write_json(inside(run_dir, seq, ".bad_frames.json"),
+               {"sequence": seq, "frames": {str(k): why for k, why in sorted(bad.items())}})
+
+
+class CorruptFile(UserError, ValueError):
+    """A file of a run folder that cannot be read; names it and says what to do."""
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(Path(path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CorruptFile(f"{path}: not valid JSON ({exc}); delete it (or rerun with --force)") from None
 
 
 def read_failures(run_dir: Path) -> dict[str, str]:
     out = {}
     for p in sorted(Path(run_dir).glob("*.failed.json")):
-        data = json.loads(p.read_text())
-        out[data["sequence"]] = data["reason"]
+        data = read_json(p)
+        if not isinstance(data, dict) or not isinstance(data.get("sequence"), str):
+            raise CorruptFile(f"{p}: expected {{\"sequence\": ..., \"reason\": ...}}; delete it (or rerun with --force)")
+        out[data["sequence"]] = str(data.get("reason", ""))
     return out
 
 
 def clear_sequence(run_dir: Path, seq: str) -> None:
-    for suffix in (".txt", ".frames.csv", ".trace.csv", ".failed.json"):
-        (Path(run_dir) / f"{seq}{suffix}").unlink(missing_ok=True)
+    for suffix in (".txt", ".frames.csv", ".trace.csv", ".failed.json", ".bad_frames.json"):
+        inside(run_dir, seq, suffix).unlink(missing_ok=True)
 
 
 def package_versions() -> dict[str, str]:
@@ -145,4 +182,9 @@ def write_manifest(run_dir: Path, manifest: dict) -> None:
 
 def read_manifest(run_dir: Path) -> dict | None:
     p = Path(run_dir) / MANIFEST
-    return json.loads(p.read_text()) if p.is_file() else None
+    if not p.is_file():
+        return None
+    data = read_json(p)
+    if not isinstance(data, dict):
+        raise CorruptFile(f"{p}: expected a JSON object; delete it (or rerun with --force)")
+    return data

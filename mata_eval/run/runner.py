@@ -1,28 +1,44 @@
 """Run an experiment: every (run, sequence) pair through the scheduler, on an executor
 (:mod:`mata_eval.run.executors`: local worker processes or a Ray cluster).
 
-A sequence that fails (unreadable frames, a tracker that raises or returns NaN) is recorded in
-``<seq>.failed.json`` and the others go on; finished sequences are skipped on a rerun unless
-``force``; every file is written atomically, so an interrupted run loses nothing finished."""
+A sequence that fails (unreadable frames, a tracker that raises, returns NaN or does not return
+within ``timeout_s``) is recorded in ``<seq>.failed.json`` and the others go on; finished
+sequences are skipped on a rerun unless ``force``; every file is written atomically, so an
+interrupted run loses nothing finished. A lock file in each run folder keeps a second run from
+writing into it; SIGINT / SIGTERM stop the run within seconds (docs/reliability.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
+import signal
+import threading
+import warnings
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
+import filelock
 from tqdm import tqdm
 
+from ..core.errors import Interrupted, UserError
 from ..core.sequence import Sequence
 from . import results
 from .config import Experiment, RunSpec
 from .executors import Executor, LocalExecutor
+from .scheduler import RateWarning
 from .tasks import SequenceResult, Task, as_run_sees_it, base_sequences, make_tasks, plan
 
 
-class ResultsConflict(RuntimeError):
+class ResultsConflict(UserError):
     """The run folder holds results of a different configuration."""
+
+
+class RunLocked(UserError):
+    """Another mata-eval run is writing into the run folder."""
+
+
+LOCK = ".lock"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +47,7 @@ class SequenceOutcome:
     sequence: str
     status: str  # "done", "skipped" (already finished) or "failed"
     reason: str = ""
+    bad_frames: tuple[int, ...] = ()  # frames excluded from scoring (on_bad_frame: skip)
 
 
 _SEQUENCES: dict[str, list[Sequence]] = {}
@@ -46,13 +63,19 @@ def load_sequences(spec: RunSpec) -> list[Sequence]:
 
 
 def run_dir(exp: Experiment, spec: RunSpec) -> Path:
-    return exp.output / spec.name
+    return results.inside(exp.output, spec.name)
 
 
-def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool) -> Path:
-    """Create the run folder and its manifest; refuse to mix results of another configuration."""
+def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = ()) -> Path:
+    """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
+    to mix results of another configuration."""
     out = run_dir(exp, spec)
-    old = results.read_manifest(out)
+    try:
+        old = results.read_manifest(out)
+    except results.CorruptFile:
+        if not force:
+            raise
+        old = None
     if old is not None and old.get("config_hash") != spec.config_hash and not force:
         raise ResultsConflict(
             f"{out} holds results of a different configuration (config hash {old.get('config_hash')} "
@@ -66,6 +89,8 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool) -> Path:
         "seed": spec.seed,
         "sequence_seeds": "numpy.random.default_rng([seed, crc32(sequence name)])",
         "metric_profile": spec.metrics_profile,
+        "timeout_s": spec.timeout_s,
+        "warnings": list(notes),
         "versions": results.package_versions(),
         "git_commit": results.git_commit(),
         "machine": results.machine(),
@@ -79,10 +104,73 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
         if r.reason:
             results.write_failure(out, r.sequence, r.reason, r.traceback)
         else:
+            if r.bad_frames:
+                results.write_bad_frames(out, r.sequence, dict(r.bad_frames))
             results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
     except OSError as exc:  # e.g. disk full: this sequence is lost, the others go on
         return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")
-    return SequenceOutcome(r.run, r.sequence, "failed" if r.reason else "done", r.reason)
+    return SequenceOutcome(r.run, r.sequence, "failed" if r.reason else "done", r.reason,
+                           tuple(k for k, _ in r.bad_frames))
+
+
+def protocol_warnings(spec: RunSpec) -> list[str]:
+    """What the protocol warns about on the camera rates of the run's sequences (e.g. an EOP
+    rate the camera grid cannot give), each message once."""
+    protocol = spec.protocol.create()
+    if not hasattr(protocol, "timing"):  # a protocol that runs the blocks itself (live)
+        return []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RateWarning)
+        for fps in sorted({float(s.fps) for s in load_sequences(spec)}):
+            protocol.timing(fps)
+    return list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, RateWarning)))
+
+
+@contextlib.contextmanager
+def lock_run_dir(out: Path) -> Iterator[None]:
+    """Hold ``<run>/.lock`` (an OS file lock, released even when the process is killed)."""
+    out.mkdir(parents=True, exist_ok=True)
+    lock = filelock.FileLock(str(out / LOCK))
+    try:
+        lock.acquire(timeout=0)
+    except filelock.Timeout:
+        raise RunLocked(f"{out} is being written by another mata-eval run (lock file {out / LOCK}); "
+                        f"wait for it to end, or write to another folder with -o") from None
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+@contextlib.contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """In the main thread: SIGINT and SIGTERM raise :class:`Interrupted` (once: the cleanup that
+    follows, the executor stopping its workers, is not interrupted again)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    stops = (signal.SIGINT, signal.SIGTERM)
+
+    def stop(signum, frame):
+        for s in stops:
+            signal.signal(s, signal.SIG_IGN)
+        raise Interrupted(signum)
+
+    previous = {s: signal.signal(s, stop) for s in stops}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def select_runs(exp: Experiment, only: list[str] | None) -> list[RunSpec]:
+    specs = [r for r in exp.runs if not only or r.name in only]
+    if only and len(specs) != len(set(only)):
+        known = ", ".join(r.name for r in exp.runs)
+        raise UserError(f"unknown run name(s) {', '.join(sorted(set(only) - {r.name for r in specs}))} "
+                        f"in --runs; the runs of {exp.path} are: {known}")
+    return specs
 
 
 def run_experiment(
@@ -100,15 +188,41 @@ def run_experiment(
     The pending (run, sequence) pairs become tasks, one per sequence with every run that reads
     it (each frame decoded once for all, :mod:`mata_eval.run.tasks`), longest first, on
     ``executor`` (default: a local pool of ``jobs`` processes). The executor hands results
-    back and this process writes every file: one writer per run folder, on any executor."""
-    specs = [r for r in exp.runs if not only or r.name in only]
-    if only and len(specs) != len(set(only)):
-        known = ", ".join(r.name for r in exp.runs)
-        raise KeyError(f"unknown run name(s) {sorted(set(only) - {r.name for r in specs})}; runs: {known}")
+    back and this process writes every file: one writer per run folder, on any executor.
+
+    Raises :class:`RunLocked` when another run writes into one of the run folders, and
+    :class:`Interrupted` on SIGINT / SIGTERM (main thread) once the executor stopped its
+    workers; its ``outcomes`` are those of the sequences finished until then."""
+    specs = select_runs(exp, only)
+    if jobs is not None and jobs < 1:
+        raise UserError(f"jobs: expected 1 or more worker processes, got {jobs}")
     outcomes: list[SequenceOutcome] = []
+    with contextlib.ExitStack() as locks, stop_on_signals():
+        for spec in specs:
+            locks.enter_context(lock_run_dir(run_dir(exp, spec)))
+        try:
+            _run_locked(exp, specs, jobs, force, progress, log, executor, outcomes)
+        except Interrupted as exc:
+            exc.outcomes = list(outcomes)
+            raise
+    for o in outcomes:
+        if o.status == "failed":
+            log(f"FAILED {o.run}/{o.sequence}: {o.reason}")
+        elif o.bad_frames:
+            frames = ", ".join(map(str, o.bad_frames[:10])) + (" ..." if len(o.bad_frames) > 10 else "")
+            log(f"{o.run}/{o.sequence}: {len(o.bad_frames)} bad frame(s) excluded from scoring "
+                f"(on_bad_frame: skip): {frames}; see {o.sequence}.bad_frames.json")
+    return outcomes
+
+
+def _run_locked(exp: Experiment, specs: list[RunSpec], jobs: int | None, force: bool, progress: bool,
+                log: Callable[[str], None], executor: Executor | None, outcomes: list[SequenceOutcome]) -> None:
     pending: list[tuple[RunSpec, int, Sequence]] = []
     for spec in specs:
-        out = prepare_run_dir(exp, spec, force)
+        notes = protocol_warnings(spec)
+        for message in notes:
+            log(f"warning: {spec.name}: {message}")
+        out = prepare_run_dir(exp, spec, force, notes)
         for i, seq in enumerate(load_sequences(spec)):
             if force:
                 results.clear_sequence(out, seq.name)
@@ -133,7 +247,3 @@ def run_experiment(
             ex.run(exp, plan(make_tasks(pending), ex.workers), done)
     finally:
         bar.close()
-    for o in outcomes:
-        if o.status == "failed":
-            log(f"FAILED {o.run}/{o.sequence}: {o.reason}")
-    return outcomes

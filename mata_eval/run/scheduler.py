@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import io
 import math
+import signal
+import threading
 import time
 from bisect import bisect_right
 from dataclasses import dataclass, field
@@ -39,7 +41,7 @@ from typing import Any, Callable, Generator, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
-from ..core.sequence import Sequence
+from ..core.sequence import FrameReadError, Sequence
 from .timing_profile import BlockProfile
 from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
 
@@ -142,6 +144,10 @@ class TraceEvent(NamedTuple):
     t: float
 
 
+class RateWarning(UserWarning):
+    """A protocol's rate that the camera grid cannot give; names the rate actually run."""
+
+
 class BlockError(RuntimeError):
     """A block raised or returned an unusable value; names the block and the frame."""
 
@@ -159,7 +165,8 @@ class SequenceRun:
     output); ``source_frame`` (N,): capture frame of the held value (0 = the initial box);
     ``wall_ms``: block -> (N,) wall time of the call started at frame k (NaN where none);
     ``trace``: start/publish/skip events; ``rates_hz``: block -> starts per second of camera
-    time (initialisation included)."""
+    time (initialisation included); ``bad_frames``: (frame, reason) of the unreadable frames
+    that were excluded from scoring (``skip_bad_frames``)."""
 
     fps: float
     boxes: np.ndarray
@@ -169,6 +176,7 @@ class SequenceRun:
     wall_ms: Mapping[str, np.ndarray]
     trace: tuple[TraceEvent, ...]
     rates_hz: Mapping[str, float]
+    bad_frames: tuple[tuple[int, str], ...] = ()
 
     def frames_csv(self) -> str:
         cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
@@ -266,11 +274,18 @@ def run_sequence(
     feedback: bool = True,
     *,
     clock: Callable[[], float] = time.perf_counter,
+    call_timeout_s: float | None = None,
+    skip_bad_frames: bool = False,
 ) -> SequenceRun:
     """Run the blocks over ``sequence`` as ``protocol`` times them (see the module docstring).
 
-    ``egomotion`` / ``estimator`` may be None. ``clock`` measures wall time (seconds)."""
-    steps = sequence_steps(sequence, tracker, egomotion, estimator, protocol, rng, feedback, clock=clock)
+    ``egomotion`` / ``estimator`` may be None. ``clock`` measures wall time (seconds).
+    ``call_timeout_s``: a block call that runs longer raises :class:`BlockError` (main thread).
+    A frame that cannot be read, or whose size differs from frame 0's, raises
+    :class:`FrameReadError`; with ``skip_bad_frames`` (any frame but 0) the blocks skip it and
+    it is not scored (``SequenceRun.bad_frames``)."""
+    steps = sequence_steps(sequence, tracker, egomotion, estimator, protocol, rng, feedback, clock=clock,
+                           call_timeout_s=call_timeout_s, skip_bad_frames=skip_bad_frames)
     while True:
         try:
             next(steps)
@@ -288,6 +303,8 @@ def sequence_steps(
     feedback: bool = True,
     *,
     clock: Callable[[], float] = time.perf_counter,
+    call_timeout_s: float | None = None,
+    skip_bad_frames: bool = False,
 ) -> Generator[int, None, SequenceRun]:
     """:func:`run_sequence` one frame at a time: yields ``k`` before frame k, returns the
     :class:`SequenceRun`. Several runs of one sequence advanced in turn ask for frame k one
@@ -333,7 +350,22 @@ def sequence_steps(
     boxes = np.empty((n, 4))
     confidence = np.full(n, np.nan)
     source = np.zeros(n, dtype=int)
+    scored = delivered.copy()
+    bad_frames: list[tuple[int, str]] = []
+    frame_size: tuple[int, int] | None = None  # (width, height) of frame 0
 
+    def read_frame(k: int) -> np.ndarray:
+        nonlocal frame_size
+        img = sequence.image(k)
+        size = (int(img.shape[1]), int(img.shape[0]))
+        if frame_size is None:
+            frame_size = size
+        elif size != frame_size:
+            raise FrameReadError(f"frame {k} of sequence {sequence.name!r} is {size[0]}x{size[1]} pixels, "
+                                 f"frame 0 is {frame_size[0]}x{frame_size[1]}")
+        return img
+
+    alarm = _CallAlarm(call_timeout_s)
     for k in range(n):
         yield k
         tk = k / fps
@@ -342,11 +374,19 @@ def sequence_steps(
         else:
             trace.append(TraceEvent("camera", "skip", k, tk))
         image: np.ndarray | None = None
+        bad = False  # frame k could not be read and is skipped
 
-        def frame_image() -> np.ndarray:
-            nonlocal image
-            if image is None:
-                image = sequence.image(k)
+        def frame_image() -> np.ndarray | None:
+            nonlocal image, bad
+            if image is None and not bad:
+                try:
+                    image = read_frame(k)
+                except FrameReadError as exc:
+                    if not skip_bad_frames or k == 0:
+                        raise
+                    bad = True
+                    bad_frames.append((k, str(exc)))
+                    scored[k] = False
             return image
 
         est_tick = None  # the estimator's call of this frame, finished after the tracker
@@ -355,7 +395,7 @@ def sequence_steps(
                 dets = [] if est_tick is None else _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
                 if dets:
                     t0 = clock()
-                    value = _call("estimator", k, tk, estimator.step, tk, (), dets)
+                    value = _call(alarm, "estimator", k, tk, estimator.step, tk, (), dets)
                     wall_ms["estimator"][k] += 1e3 * (clock() - t0)
                     _check_estimate(value, k, tk)
                     boards["estimator"].post(value, tk, k, est_tick)
@@ -365,6 +405,9 @@ def sequence_steps(
             if busy_until[b] > tk + EPS:
                 trace.append(TraceEvent(b, "skip", k, tk))
                 continue
+            if b in ("egomotion", "tracker") and frame_image() is None:  # a bad frame, skipped
+                trace.append(TraceEvent(b, "skip", k, tk))
+                continue
             trace.append(TraceEvent(b, "start", k, tk))
             first = calls[b] == 0
             calls[b] += 1
@@ -372,7 +415,7 @@ def sequence_steps(
             if b == "egomotion":
                 img = frame_image()
                 t0 = clock()
-                value = _call(b, k, tk, obj.initialize if first else obj.estimate, img)
+                value = _call(alarm, b, k, tk, obj.initialize if first else obj.estimate, img)
                 wall = clock() - t0
                 if not first and not isinstance(value, Motion):
                     raise BlockError(b, k, tk, f"expected a Motion, got {type(value).__name__}")
@@ -380,7 +423,7 @@ def sequence_steps(
                 img = frame_image()
                 if first:
                     t0 = clock()
-                    value = _call(b, k, tk, obj.initialize, img, init_box)
+                    value = _call(alarm, b, k, tk, obj.initialize, img, init_box)
                     wall = clock() - t0
                 else:
                     prior = None
@@ -390,19 +433,19 @@ def sequence_steps(
                             est_box = boards["estimator"].values[i - 1].box
                             prior = (est_box.cx, est_box.cy)
                     t0 = clock()
-                    value = _call(b, k, tk, obj.track, img, prior)
+                    value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
                     _check_output(value, k, tk)
             else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
                     t0 = clock()
-                    value = _call(b, k, tk, obj.initialize, init_box, tk)
+                    value = _call(alarm, b, k, tk, obj.initialize, init_box, tk)
                     wall = clock() - t0
                 else:
                     motions = _take(boards["egomotion"], consumed, "egomotion", tk, d_ego_est)
                     dets = _take(boards["tracker"], consumed, "tracker", tk, d_trk_est)
                     t0 = clock()
-                    value = _call(b, k, tk, obj.step, tk, motions, dets)
+                    value = _call(alarm, b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
                 _check_estimate(value, k, tk)
             wall_ms[b][k] = 1e3 * wall
@@ -442,7 +485,7 @@ def sequence_steps(
     # Stable sort: events at the same instant keep the order in which they happened (a publish
     # due at t_k before the starts of frame k; a zero-latency publish right after its start).
     trace.sort(key=lambda e: (e.frame, round(e.t / EPS)))  # times equal within EPS tie
-    return SequenceRun(fps, boxes, delivered.copy(), confidence, source, wall_ms, tuple(trace), rates)
+    return SequenceRun(fps, boxes, scored, confidence, source, wall_ms, tuple(trace), rates, tuple(bad_frames))
 
 
 def _first_frame_at(t: float, fps: float) -> int:
@@ -457,10 +500,43 @@ def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> l
     return [Stamped(board.values[i], board.t_capture[i], board.t_publish[i] + delay) for i in range(i0, i1)]
 
 
-def _call(block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
+class CallTimeout(BaseException):
+    """A block call ran past ``timeout_s`` (a BaseException: a block's own ``except Exception``
+    does not swallow it)."""
+
+
+class _CallAlarm:
+    """Time limit of one block call: a ``SIGALRM`` timer armed around each call. It interrupts
+    Python code and sleeps (not native code that never returns to the interpreter); only in the
+    main thread, where every worker runs its sequences, and a no-op elsewhere or for None."""
+
+    def __init__(self, seconds: float | None):
+        usable = hasattr(signal, "setitimer") and threading.current_thread() is threading.main_thread()
+        self.seconds = seconds if usable else None
+
+    def _expire(self, signum: int, frame: Any) -> None:
+        raise CallTimeout(f"did not return within {self.seconds:g} s (timeout_s)")
+
+    def call(self, fn: Callable, *args: Any) -> Any:
+        if self.seconds is None:
+            return fn(*args)
+        previous = signal.signal(signal.SIGALRM, self._expire)
+        signal.setitimer(signal.ITIMER_REAL, self.seconds)
+        try:
+            return fn(*args)
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+
+
+def _call(alarm: _CallAlarm, block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
+    """Call a block; whatever it raises, SystemExit and KeyboardInterrupt included, or a time
+    out, fails the sequence as a :class:`BlockError` (a stop of the run passes through)."""
     try:
-        return fn(*args)
-    except Exception as exc:
+        return alarm.call(fn, *args)
+    except CallTimeout as exc:
+        raise BlockError(block, k, t, str(exc)) from None
+    except (Exception, SystemExit, KeyboardInterrupt) as exc:
         raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}") from exc
 
 
@@ -469,6 +545,12 @@ def _check_output(value: Any, k: int, t: float) -> None:
         raise BlockError("tracker", k, t, f"expected a TrackerOutput, got {type(value).__name__}")
     if not _finite(value.box):
         raise BlockError("tracker", k, t, f"returned a non-finite box {value.box}")
+    try:
+        confidence = float(value.confidence)
+    except (TypeError, ValueError):
+        confidence = math.nan
+    if not 0.0 <= confidence <= 1.0:
+        raise BlockError("tracker", k, t, f"returned confidence {value.confidence!r}; expected a number in [0, 1]")
 
 
 def _check_estimate(value: Any, k: int, t: float) -> None:

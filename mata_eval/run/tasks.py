@@ -16,6 +16,7 @@ import dataclasses
 import heapq
 import json
 import traceback
+import warnings
 import zlib
 from typing import Any, Callable, Generator
 
@@ -23,7 +24,7 @@ import numpy as np
 
 from ..core.sequence import Sequence
 from .config import Experiment, PluginBlock, RunSpec
-from .scheduler import SequenceRun, WallTimeLatency, sequence_steps
+from .scheduler import RateWarning, SequenceRun, WallTimeLatency, sequence_steps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +54,7 @@ class SequenceResult:
     trace_csv: str = ""
     reason: str = ""
     traceback: str = ""
+    bad_frames: tuple[tuple[int, str], ...] = ()  # (frame, why) excluded from scoring (on_bad_frame: skip)
 
 
 def failed(task: Task, reason: str, tb: str = "") -> list[SequenceResult]:
@@ -180,7 +182,8 @@ def run_task(exp: Experiment, task: Task) -> list[SequenceResult]:
         base = base_sequences(specs[task.runs[0]])[task.index]
     except Exception as exc:  # e.g. the dataset is missing on this node
         return failed(task, f"{type(exc).__name__}: {exc}", traceback.format_exc())
-    with contextlib.ExitStack() as trackers:  # closed (a tracker process, a device) however it ends
+    with contextlib.ExitStack() as trackers, warnings.catch_warnings():  # trackers closed however it ends
+        warnings.simplefilter("ignore", RateWarning)  # the driver reported them once
         return _lockstep(specs, task, base, trackers)
 
 
@@ -204,7 +207,9 @@ def _lockstep(specs: dict[str, RunSpec], task: Task, base: Sequence,
             if hasattr(protocol, "run_sequence"):  # a protocol that runs the blocks itself (live)
                 steps[name] = _in_one_step(protocol.run_sequence, views[view], *blocks, rng, feedback=spec.feedback)
             else:  # a timing preset of the camera-clock scheduler
-                steps[name] = sequence_steps(views[view], *blocks, protocol, rng, feedback=spec.feedback)
+                steps[name] = sequence_steps(views[view], *blocks, protocol, rng, feedback=spec.feedback,
+                                             call_timeout_s=spec.timeout_s,
+                                             skip_bad_frames=spec.on_bad_frame == "skip")
         except Exception as exc:
             results[name] = _failure(name, task.sequence, exc)
     while steps:  # one frame of every run, then the next frame
@@ -213,7 +218,8 @@ def _lockstep(specs: dict[str, RunSpec], task: Task, base: Sequence,
                 next(step)
             except StopIteration as stop:
                 run = stop.value
-                results[name] = SequenceResult(name, task.sequence, run.boxes, run.frames_csv(), run.trace_csv())
+                results[name] = SequenceResult(name, task.sequence, run.boxes, run.frames_csv(), run.trace_csv(),
+                                               bad_frames=tuple(getattr(run, "bad_frames", ())))
                 del steps[name]
             except Exception as exc:  # one run must never take the others down
                 results[name] = _failure(name, task.sequence, exc)

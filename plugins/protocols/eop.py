@@ -10,12 +10,16 @@ measured timing profile (``latency_profile``), communication delays on links
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import numpy as np
+
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
-from mata_eval.run.scheduler import BLOCKS, BlockTiming, FixedLatency, Latency, ProfileLatency, Timing
+from mata_eval.run.scheduler import (BLOCKS, EPS, BlockTiming, FixedLatency, Latency, ProfileLatency,
+                                     RateWarning, Timing, turn_frames)
 from mata_eval.run.timing_profile import TimingProfile, read_profile
 
 CONSUMERS = BLOCKS + ("output",)
@@ -36,6 +40,30 @@ def _check_latency(key: str, value: Any) -> None:
         return
     if isinstance(value, str) or not (value >= 0 and math.isfinite(value)):
         raise ValueError(f"eop: {key}: expected {_LATENCY_HELP}, got {value!r}")
+
+
+#: A rate within this relative distance of ``fps / n`` is ``fps / n`` (the digits typed: 3.3333 Hz
+#: on a 10 fps camera is every 3rd frame, although 1 / 3.3333 s is 3 us longer than 3 frames).
+GRID_TOLERANCE = 1e-4
+
+
+def on_camera_grid(hz: float, fps: float) -> float:
+    """``fps / n`` when ``hz`` is within :data:`GRID_TOLERANCE` of it for a whole ``n``, else ``hz``."""
+    n = round(fps / hz)
+    return fps / n if n >= 1 and abs(fps / hz - n) <= GRID_TOLERANCE * fps / hz else hz
+
+
+def grid_rate(hz: float, latency_s: float, fps: float, n_frames: int = 600) -> tuple[list[int], float]:
+    """Start frames of a block with turns on the ``m / hz`` grid and a fixed latency (busy at a
+    turn: skipped, as the scheduler does), and its steady rate in Hz (after the first call)."""
+    starts, busy_until = [], -math.inf
+    for k in np.flatnonzero(turn_frames(n_frames, hz, fps)):
+        if busy_until <= k / fps + EPS:
+            starts.append(int(k))
+            busy_until = k / fps + latency_s
+    steady = starts[1:]
+    rate = fps * (len(steady) - 1) / (steady[-1] - steady[0]) if len(steady) > 1 else math.nan
+    return starts, rate
 
 
 def parse_link(key: str) -> tuple[str, str]:
@@ -128,7 +156,7 @@ class EOP:
             # find itself busy at every other grid tick).
             hz, period_hz = fps, self._block_profile(block).rate_hz
         else:
-            hz = period_hz = float(rate)
+            hz = period_hz = on_camera_grid(float(rate), fps)
         latency: Latency
         if lat == "period":
             latency = FixedLatency(1.0 / min(period_hz, fps))  # no block runs faster than the camera
@@ -138,7 +166,20 @@ class EOP:
             latency = ProfileLatency(self._block_profile(block))
         else:
             latency = FixedLatency(float(lat))
+        if rate not in (None, "profile") and not math.isclose(fps / hz, round(fps / hz), rel_tol=1e-9):
+            self._warn_off_grid(block, rate, fps, hz, latency)
         return BlockTiming(hz, latency, self.jitter[block])
+
+    def _warn_off_grid(self, block: str, rate: float, fps: float, hz: float, latency: Latency) -> None:
+        """A block starts only when a frame arrives: a rate that is not fps / n runs at irregular
+        frames (and may find itself busy at its turns); name the frames and the rate it runs at."""
+        fixed = isinstance(latency, FixedLatency) and not self.jitter[block]
+        starts, run_hz = grid_rate(hz, latency.seconds if fixed else 0.0, fps)
+        why = f"is faster than the {fps:g} fps camera" if hz > fps else f"is not {fps:g} fps / n"
+        warnings.warn(RateWarning(
+            f"eop: {block}_hz {rate:g} {why}: the {block} starts at frames "
+            f"{', '.join(map(str, starts[:6]))}, ... and runs at {run_hz:.4g} Hz{'' if fixed else ' at most'}; "
+            f"use {fps:g} / n Hz ({', '.join(f'{fps / n:.4g}' for n in range(1, 5))}, ...) for a regular rate"))
 
     def timing(self, fps: float) -> Timing:
         return Timing(fps, {b: self.block_timing(b, fps) for b in BLOCKS}, self.links)

@@ -15,10 +15,12 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from ...core.errors import UserError
+
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
 
-class DatasetError(ValueError):
+class DatasetError(UserError, ValueError):
     """A dataset folder is missing something the loader needs; says which file and where."""
 
 

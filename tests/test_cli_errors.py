@@ -1,0 +1,104 @@
+"""User mistakes get one line naming the file and what to do (no traceback unless --debug); the
+exit status is non-zero when any sequence failed."""
+
+from __future__ import annotations
+
+import textwrap
+
+import numpy as np
+import pytest
+
+from mata_eval.cli import main
+from mata_eval.core.registry import PluginEntry, _add
+
+
+def _exp(tmp_path, body):
+    p = tmp_path / "exp.yaml"
+    p.write_text(textwrap.dedent(body))
+    return p
+
+
+def _one_line_error(capsys, *names):
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert err.startswith("error: ")
+    for name in names:
+        assert name in err, err
+    return err
+
+
+def test_a_missing_dataset_root_is_one_line(tmp_path, capsys):
+    p = _exp(tmp_path, f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: folder, root: {tmp_path / 'nowhere'}}}
+        tracker: kcf
+        """)
+    assert main(["run", str(p), "-j", "1", "-q"]) == 2
+    _one_line_error(capsys, str(tmp_path / "nowhere"))
+    with pytest.raises(Exception, match="nowhere"):
+        main(["--debug", "run", str(p), "-j", "1", "-q"])
+
+
+def test_an_unknown_run_is_one_line(tmp_path, capsys):
+    p = _exp(tmp_path, """\
+        dataset: {name: synthetic}
+        tracker: kcf
+        """)
+    assert main(["run", str(p), "--runs", "nope", "-q", "-o", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, "nope", "exp")
+
+
+def test_force_with_minus_one_jobs_deletes_nothing(tmp_path, capsys):
+    run = tmp_path / "o" / "exp"
+    run.mkdir(parents=True)
+    p = _exp(tmp_path, "dataset: {name: synthetic}\ntracker: kcf\n")
+    assert main(["run", str(p), "--force", "-j", "-1", "-q", "-o", str(tmp_path / "o")]) == 2
+    _one_line_error(capsys, "jobs")
+
+
+def test_corrupt_run_files_name_the_file(tmp_path, capsys):
+    from mata_eval.run import results
+
+    (tmp_path / "manifest.json").write_text("{not json")
+    with pytest.raises(results.CorruptFile, match=r"manifest\.json: not valid JSON"):
+        results.read_manifest(tmp_path)
+    (tmp_path / "manifest.json").unlink()
+    (tmp_path / "a.failed.json").write_text("[]")
+    with pytest.raises(results.CorruptFile, match=r"a\.failed\.json"):
+        results.read_failures(tmp_path)
+
+
+def test_a_third_party_plugin_cannot_take_a_built_in_name():
+    class KCF:
+        pass
+
+    class Other:
+        pass
+
+    names = {}
+    builtin = PluginEntry("tracker", "kcf", KCF, "mata-eval", "")
+    thief = PluginEntry("tracker", "kcf", Other, "evil-trackers", "")
+    assert _add(names, thief) is None
+    failure = _add(names, builtin)  # registered later, still wins
+    assert names["kcf"] is builtin
+    assert failure.package == "evil-trackers" and "taken by" in failure.error
+
+
+def test_eval_on_a_folder_it_cannot_write_says_what_to_do(tmp_path, capsys, monkeypatch):
+    """(The tests may run as root, for whom no folder is read-only: the write is made to fail.)"""
+    from mata_eval.run import results
+
+    run = tmp_path / "run"
+    gt = "1,2,3,4\n" * 3
+    (tmp_path / "data" / "seq").mkdir(parents=True)
+    (tmp_path / "data" / "seq" / "groundtruth_rect.txt").write_text(gt)
+    results.write_sequence(run, "seq", np.array([[1.0, 2, 3, 4]] * 3), "frame,scored\n0,1\n1,1\n2,1\n", "")
+    results.write_manifest(run, {"run": "r"})
+
+    def refuse(path, text):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(results, "atomic_write_text", refuse)
+    assert main(["eval", str(run), "--dataset", "folder", "--root", str(tmp_path / "data")]) == 2
+    _one_line_error(capsys, "scores.json", str(run), "--no-save")
+    assert main(["eval", str(run), "--dataset", "folder", "--root", str(tmp_path / "data"), "--no-save"]) == 0

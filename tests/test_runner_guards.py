@@ -1,0 +1,179 @@
+"""The runner's guarantees: workers run the configuration the driver resolved, one writer per
+run folder, a block call that never returns or raises SystemExit fails only its sequence."""
+
+from __future__ import annotations
+
+import json
+import os
+import textwrap
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+from filelock import FileLock
+
+import mata_eval.run.config
+from mata_eval.run.config import load_experiment
+from mata_eval.core.params import param
+from mata_eval.core.registry import PluginEntry, Registry, load_registry
+from mata_eval.core.errors import UserError
+from mata_eval.run.runner import RunLocked, run_experiment
+from mata_eval.core.sequence import Sequence
+from mata_eval.core.types import Box, TrackerOutput
+
+
+class Clips:
+    """Four 5-frame sequences; the target of c2 sits at y = 20 (where Faulty misbehaves)."""
+
+    name = "clips"
+
+    @dataclass(frozen=True)
+    class Params:
+        pass
+
+    def __init__(self, params):
+        self.params = params
+
+    def sequences(self):
+        out = []
+        for i in range(4):
+            gt = np.array([[10.0 + k, 20.0 if i == 2 else 10.0, 8.0, 8.0] for k in range(5)])
+            out.append(Sequence(f"c{i}", gt, 30.0, loader=lambda k: np.full((32, 48, 3), k, np.uint8)))
+        return out
+
+
+class Faulty:
+    """Moves the box ``step`` px right per call; on the sequence whose target is at y = 20 it
+    does what ``fault`` says at its 2nd call."""
+
+    name = "faulty"
+
+    @dataclass(frozen=True)
+    class Params:
+        step: float = param(1.0, "px per call")
+        fault: str = param("none", "none | hang | exit | interrupt | confidence_nan | confidence_big")
+
+    def __init__(self, params):
+        self.params = params
+        self.calls = 0
+
+    def initialize(self, image, box):
+        self.box = box
+        self.victim = box.y == 20.0
+
+    def track(self, image, prior=None):
+        self.calls += 1
+        fault = self.params.fault if self.victim and self.calls == 2 else "none"
+        if fault == "hang":
+            time.sleep(60)
+        elif fault == "exit":
+            raise SystemExit(3)
+        elif fault == "interrupt":
+            raise KeyboardInterrupt
+        self.box = Box(self.box.x + self.params.step, self.box.y, self.box.w, self.box.h)
+        confidence = {"confidence_nan": float("nan"), "confidence_big": 7.5}.get(fault, 1.0)
+        return TrackerOutput(self.box, confidence)
+
+
+@pytest.fixture
+def registry(monkeypatch):
+    real = load_registry()
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
+    reg = Registry({**real.plugins, "dataset": {"clips": entry("dataset", Clips)},
+                    "tracker": {"faulty": entry("tracker", Faulty)}}, ())
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", lambda: reg)
+    return reg
+
+
+def _write(tmp_path, tracker="{name: faulty}", extra=""):
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: clips\ntracker: {tracker}\n{extra}")
+    return p
+
+
+def _statuses(outcomes):
+    return {o.sequence: o.status for o in outcomes}
+
+
+QUIET = dict(progress=False, log=lambda s: None)
+
+
+def test_workers_run_the_configuration_the_driver_resolved(tmp_path, registry):
+    """Editing the file while a run goes on changes nothing: the workers never read it."""
+    p = _write(tmp_path, "{name: faulty, step: 1.0}")
+    exp = load_experiment(p, registry)
+    p.write_text(p.read_text().replace("step: 1.0", "step: 5.0"))  # edited after loading
+    run_experiment(exp, jobs=2, **QUIET)
+    run = tmp_path / "out" / "exp"
+    manifest = json.loads((run / "manifest.json").read_text())
+    assert manifest["config"]["tracker"]["step"] == 1.0
+    for i in range(4):
+        x = np.loadtxt(run / f"c{i}.txt", delimiter=",")[:, 0]
+        np.testing.assert_allclose(x, 10.0 + np.arange(5))  # 1 px per call as loaded, not 5
+
+
+def test_a_second_writer_is_refused(tmp_path, registry):
+    exp = load_experiment(_write(tmp_path), registry)
+    (tmp_path / "out" / "exp").mkdir(parents=True)
+    with FileLock(str(tmp_path / "out" / "exp" / ".lock")):  # another run holds the folder
+        with pytest.raises(RunLocked, match=r"out/exp.*another mata-eval run"):
+            run_experiment(exp, jobs=1, **QUIET)
+    assert not list((tmp_path / "out" / "exp").glob("*.txt"))
+    assert _statuses(run_experiment(exp, jobs=1, **QUIET)) == {f"c{i}": "done" for i in range(4)}
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_call_that_never_returns_fails_its_sequence_and_the_run_goes_on(tmp_path, registry, jobs):
+    exp = load_experiment(_write(tmp_path, "{name: faulty, fault: hang}", "timeout_s: 0.5\n"), registry)
+    t0 = time.monotonic()
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=jobs, **QUIET)}
+    assert time.monotonic() - t0 < 30
+    assert _statuses(outcomes.values()) == {"c0": "done", "c1": "done", "c2": "failed", "c3": "done"}
+    assert "did not return within 0.5 s" in outcomes["c2"].reason and "frame 2" in outcomes["c2"].reason
+    failure = json.loads((tmp_path / "out" / "exp" / "c2.failed.json").read_text())
+    assert "timeout_s" in failure["reason"]
+
+
+@pytest.mark.parametrize("fault, words", [("exit", "SystemExit"), ("interrupt", "KeyboardInterrupt"),
+                                          ("confidence_nan", "confidence"), ("confidence_big", "confidence")])
+def test_a_misbehaving_tracker_fails_only_its_sequence(tmp_path, registry, fault, words):
+    exp = load_experiment(_write(tmp_path, f"{{name: faulty, fault: {fault}}}"), registry)
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, **QUIET)}
+    assert _statuses(outcomes.values()) == {"c0": "done", "c1": "done", "c2": "failed", "c3": "done"}
+    assert words in outcomes["c2"].reason
+
+
+def test_force_with_a_bad_job_count_deletes_nothing(tmp_path, registry):
+    exp = load_experiment(_write(tmp_path), registry)
+    run_experiment(exp, jobs=1, **QUIET)
+    with pytest.raises(UserError, match="jobs"):
+        run_experiment(exp, jobs=-1, force=True, **QUIET)
+    assert len(list((tmp_path / "out" / "exp").glob("c*.txt"))) == 4
+
+
+class Escaping(Clips):
+    name = "escaping"
+
+    def sequences(self):
+        gt = np.tile([10.0, 10.0, 8.0, 8.0], (5, 1))
+        return [Sequence("../../escaped", gt, 30.0, loader=lambda k: np.zeros((32, 48, 3), np.uint8))]
+
+
+def test_a_sequence_name_cannot_leave_the_run_folder(tmp_path, registry):
+    reg = Registry({**registry.plugins, "dataset": {"escaping": PluginEntry("dataset", "escaping", Escaping, "test", "")}}, ())
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'a' / 'out'}\ndataset: escaping\ntracker: faulty\n")
+    with pytest.raises(UserError, match=r"'\.\./\.\./escaped' is not a single file name"):
+        run_experiment(load_experiment(p, reg), jobs=1, **QUIET)
+    assert not list(tmp_path.rglob("escaped*"))
+
+
+def test_the_exit_status_is_1_when_any_sequence_failed(tmp_path, registry, capsys):
+    from mata_eval.cli import main
+
+    p = _write(tmp_path, "{name: faulty, fault: exit}")
+    assert main(["run", str(p), "-j", "1", "-q", "--no-report"]) == 1
+    assert "1 sequence(s) failed" in capsys.readouterr().err
+    p = _write(tmp_path, "{name: faulty}")
+    assert main(["run", str(p), "-j", "1", "-q", "--no-report", "--force"]) == 0
