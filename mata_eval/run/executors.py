@@ -12,10 +12,11 @@ import ctypes
 import os
 import signal
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Protocol
 
+from . import stop
 from .config import Experiment
 from .tasks import SequenceResult, Task, failed, run_task
 
@@ -88,6 +89,7 @@ class LocalExecutor:
         if self.workers == 1 or len(tasks) <= 1:
             for task in tasks:
                 done(task, run_task(exp, task))
+                stop.check()
             return
         # A worker killed by the OS breaks the pool and every task in flight with it: rerun those
         # one process each, which finds the task that kills its process; the others complete.
@@ -104,13 +106,17 @@ class LocalExecutor:
         pool = ProcessPoolExecutor(max_workers=jobs, initializer=_local_worker)
         try:
             futures = {pool.submit(run_task, exp, task): task for task in tasks}
-            for fut in as_completed(futures):
-                try:
-                    results = fut.result()
-                except BrokenProcessPool:
-                    lost.append(futures[fut])
-                    continue
-                done(futures[fut], results)
+            waiting = set(futures)
+            while waiting:
+                finished, waiting = wait(waiting, timeout=stop.POLL_S, return_when=FIRST_COMPLETED)
+                stop.check()
+                for fut in finished:
+                    try:
+                        results = fut.result()
+                    except BrokenProcessPool:
+                        lost.append(futures[fut])
+                        continue
+                    done(futures[fut], results)
         except BaseException:
             workers = list((pool._processes or {}).values())  # no public handle before Python 3.14
             pool.shutdown(wait=False, cancel_futures=True)
@@ -161,7 +167,8 @@ class RayExecutor:
         pending = {remote.remote(exp_ref, task): task for task in tasks}
         try:
             while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=stop.POLL_S)
+                stop.check()
                 for ref in ready:
                     task = pending.pop(ref)
                     done(task, self._results(ref, task))

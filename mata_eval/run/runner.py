@@ -12,8 +12,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
-import signal
-import threading
 import warnings
 from pathlib import Path
 from typing import Callable, Iterator
@@ -27,6 +25,7 @@ from . import results
 from .config import Experiment, RunSpec
 from .executors import Executor, LocalExecutor
 from .scheduler import RateWarning
+from .stop import stop_on_signals
 from .tasks import SequenceResult, Task, as_run_sees_it, base_sequences, make_tasks, plan
 
 
@@ -140,28 +139,6 @@ def lock_run_dir(out: Path) -> Iterator[None]:
         yield
     finally:
         lock.release()
-
-
-@contextlib.contextmanager
-def stop_on_signals() -> Iterator[None]:
-    """In the main thread: SIGINT and SIGTERM raise :class:`Interrupted` (once: the cleanup that
-    follows, the executor stopping its workers, is not interrupted again)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    stops = (signal.SIGINT, signal.SIGTERM)
-
-    def stop(signum, frame):
-        for s in stops:
-            signal.signal(s, signal.SIG_IGN)
-        raise Interrupted(signum)
-
-    previous = {s: signal.signal(s, stop) for s in stops}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
 
 
 def select_runs(exp: Experiment, only: list[str] | None) -> list[RunSpec]:
