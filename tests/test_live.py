@@ -209,3 +209,24 @@ def test_live_params_are_checked_when_the_experiment_is_loaded():
         Live.Params(time_scale={"tracker": 0.5})
     with pytest.raises(ValueError, match=r"live: time_scale: unknown block 'camera'"):
         Live.Params(time_scale={"camera": 2})
+
+
+def test_eop_free_start_models_the_live_tracker():
+    """EOP ``tracker_start: free``: a 45 ms tracker on a 30 fps camera starts when it becomes
+    free, on the newest frame (t = 0, 45, 90, 135, 180 ms on frames 0, 1, 2, 4, 5), as the live
+    tracker does (test_tracker_takes_the_newest_frame...); with the paper's start on frames it
+    runs every other frame (0, 2, 4, ...)."""
+    from mata_eval.run.scheduler import run_sequence
+    from mata_eval_plugins.protocols.eop import EOP
+
+    rng = np.random.default_rng(0)
+    free = run_sequence(sequence(8, 30.0), Tracker([0.0]), None, None,
+                        EOP(EOP.Params(tracker_latency=0.045, tracker_start="free")), rng)
+    st = starts(free, "tracker")
+    assert [f for f, _ in st] == [0, 1, 2, 4, 5, 6]
+    np.testing.assert_allclose([t for _, t in st], [0.0, 0.045, 0.090, 0.135, 0.180, 0.225])
+    # frame k holds the newest output published by t_k: frame 1's (90 ms) at frames 3-4 (100,
+    # 133 ms), frame 2's (135 ms) at frame 5, frame 4's (180 ms) at 6, frame 5's (225 ms) at 7
+    assert free.source_frame.tolist() == [0, 0, 0, 1, 1, 2, 4, 5]
+    framed = run_sequence(sequence(8, 30.0), Tracker([0.0]), None, None, EOP(EOP.Params(tracker_latency=0.045)), rng)
+    assert [f for f, _ in starts(framed, "tracker")] == [0, 2, 4, 6]

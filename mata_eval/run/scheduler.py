@@ -102,6 +102,9 @@ class BlockTiming:
     hz: float
     latency: Latency = FixedLatency(0.0)
     jitter_s: float = 0.0
+    #: tracker only: free between two frames, it starts at once on the newest frame (as the live
+    #: protocol's blocks do) instead of at the next frame (docs/live.md, "What differs from EOP")
+    free_start: bool = False
 
 
 @dataclass(frozen=True)
@@ -365,6 +368,35 @@ def sequence_steps(
                                  f"frame 0 is {frame_size[0]}x{frame_size[1]}")
         return img
 
+    free_tracker = "tracker" in active and timing.blocks["tracker"].free_start
+
+    def prior_at(t: float) -> tuple[float, float] | None:
+        """The tracker's search centre: the newest estimate that reached it by ``t``."""
+        if feedback and estimator is not None:
+            i = boards["estimator"].visible(t, d_est_trk)
+            if i:
+                est_box = boards["estimator"].values[i - 1].box
+                return (est_box.cx, est_box.cy)
+        return None
+
+    def publish(b: str, k: int, t_start: float, value: Any, wall: float, first: bool) -> float:
+        """Draw the call's latency, occupy the block until it publishes, post the output
+        (captured at frame ``k``); an initialisation posts nothing but the initial estimate."""
+        wall_ms[b][k] = 1e3 * wall
+        spec = timing.blocks[b]
+        latency = float(spec.latency.draw(rng, wall))
+        if spec.jitter_s > 0:
+            latency += float(rng.normal(0.0, spec.jitter_s))
+        t_pub = t_start + max(0.0, latency)
+        busy_until[b] = t_pub
+        if t_pub <= t_end + EPS:
+            trace.append(TraceEvent(b, "publish", _first_frame_at(t_pub, fps), t_pub))
+        if not first:
+            boards[b].post(value, k / fps, k, t_pub)
+        elif b == "estimator":  # the initial estimate (the ground-truth box) is held from t = 0
+            boards[b].post(value, t_start, k, t_start)
+        return t_pub
+
     alarm = _CallAlarm(call_timeout_s)
     for k in range(n):
         yield k
@@ -426,12 +458,7 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.initialize, img, init_box)
                     wall = clock() - t0
                 else:
-                    prior = None
-                    if feedback and estimator is not None:
-                        i = boards["estimator"].visible(tk, d_est_trk)
-                        if i:
-                            est_box = boards["estimator"].values[i - 1].box
-                            prior = (est_box.cx, est_box.cy)
+                    prior = prior_at(tk)
                     t0 = clock()
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
@@ -448,23 +475,22 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
                 _check_estimate(value, k, tk)
-            wall_ms[b][k] = 1e3 * wall
-            spec = timing.blocks[b]
-            latency = float(spec.latency.draw(rng, wall))
-            if spec.jitter_s > 0:
-                latency += float(rng.normal(0.0, spec.jitter_s))
-            latency = max(0.0, latency)
-            t_pub = tk + latency
-            busy_until[b] = t_pub
-            if t_pub <= t_end + EPS:
-                trace.append(TraceEvent(b, "publish", _first_frame_at(t_pub, fps), t_pub))
-            if first:
-                if b == "estimator":  # the initial estimate (the ground-truth box) is held from t = 0
-                    boards[b].post(value, tk, k, tk)
-            else:
-                boards[b].post(value, tk, k, t_pub)
-                if b == "estimator":
-                    est_tick = t_pub
+            t_pub = publish(b, k, tk, value, wall, first)
+            if b == "estimator" and not first:
+                est_tick = t_pub
+
+        # A tracker with a free start, free before the next frame, starts at once on this one
+        # (the newest) instead of waiting for the next; at the next frame it is busy (skip).
+        ts = busy_until["tracker"]
+        if (free_tracker and calls["tracker"] and tk + EPS < ts < (k + 1) / fps - EPS and k + 1 < n
+                and frame_image() is not None):
+            trace.append(TraceEvent("tracker", "start", k, ts))
+            calls["tracker"] += 1
+            t0 = clock()
+            value = _call(alarm, "tracker", k, ts, tracker.track, frame_image(), prior_at(ts))
+            wall = clock() - t0
+            _check_output(value, k, ts)
+            publish("tracker", k, ts, value, wall, False)
 
         # Zero-order hold: the newest output of the output block visible at t_k.
         ob = boards[out_block]

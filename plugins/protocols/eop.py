@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Literal, Mapping
 
 import numpy as np
 
@@ -105,6 +105,9 @@ class EOP:
         latency_profile: str | None = param(None, "timing profile file (mata-eval profile) for 'profile' rates/latencies")
         link_delay_s: dict = param({}, "communication delays, e.g. {'tracker->estimator': 0.02} (consumer 'output' = scoring)")
         jitter_s: float | dict = param(0.0, "std (s) of Gaussian per-call latency jitter: one value, or per block")
+        tracker_start: Literal["frame", "free"] = param(
+            "frame", "when the tracker becomes free between two frames: start at the next frame (paper), "
+                     "or 'free': at once on the newest frame, as the live protocol (docs/live.md)")
 
         def __post_init__(self) -> None:
             uses_profile = False
@@ -168,7 +171,8 @@ class EOP:
             latency = FixedLatency(float(lat))
         if rate not in (None, "profile") and not math.isclose(fps / hz, round(fps / hz), rel_tol=1e-9):
             self._warn_off_grid(block, rate, fps, hz, latency)
-        return BlockTiming(hz, latency, self.jitter[block])
+        return BlockTiming(hz, latency, self.jitter[block],
+                           free_start=block == "tracker" and self.params.tracker_start == "free")
 
     def _warn_off_grid(self, block: str, rate: float, fps: float, hz: float, latency: Latency) -> None:
         """A block starts only when a frame arrives: a rate that is not fps / n runs at irregular
