@@ -13,7 +13,11 @@ import numpy as np
 SCENARIOS = ("cruise", "manoeuvre", "outofview", "occlusion", "crowd")
 
 REF_WIDTH = 1280.0  # geometry, speeds and attribute thresholds scale with width / 1280
-GENERATOR_VERSION = 3  # bump when the pixels a seed gives change (cache key of the suite)
+GENERATOR_VERSION = 4  # bump when the pixels a seed gives change (cache key of the suite)
+
+#: Camera models (:mod:`.motion`): ``uav123``, image-plane motion matched to UAV123 (the
+#: default since generator version 4); ``legacy``, version 3's tight pursuit, pixel for pixel.
+MOTIONS = ("uav123", "legacy")
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,7 @@ class SequenceSpec:
     illumination: bool = False   # a cloud shadow darkens the scene for a while
     camouflage: bool = False     # the target takes the colour of the ground where it starts
     draw_target: bool = True     # False renders the same scene without the target (tests)
+    motion: Literal["uav123", "legacy"] = "uav123"  # camera model, one of MOTIONS
 
     def __post_init__(self) -> None:
         if self.n_frames < 2:
@@ -42,6 +47,9 @@ class SequenceSpec:
         if self.width < 32 or self.height < 24:
             raise ValueError(f"SequenceSpec {self.name!r}: image size must be at least 32x24, "
                              f"got {self.width}x{self.height}")
+        if self.motion not in MOTIONS:
+            raise ValueError(f"SequenceSpec {self.name!r}: motion must be one of {', '.join(MOTIONS)}, "
+                             f"got {self.motion!r}")
 
 
 def derive_seed(*key: int) -> int:
@@ -51,7 +59,7 @@ def derive_seed(*key: int) -> int:
 
 def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 720, *,
               name: str | None = None, scenario: str | None = None, texture_seed: int | None = None,
-              fps: float = 30.0) -> SequenceSpec:
+              fps: float = 30.0, motion: str = "uav123") -> SequenceSpec:
     """A random sequence spec for ``seed``; ``scenario`` (one of :data:`SCENARIOS`) picks which
     difficulties it stages, the rest is drawn from the seed."""
     rng = np.random.default_rng(derive_seed(seed, 1))
@@ -69,15 +77,16 @@ def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 7
     )
     spec["camouflage"] = scenario in ("cruise", "crowd") and bool(rng.random() < 0.4)
     return SequenceSpec(name=name or f"syn{seed % 100000:05d}_{scenario}", seed=int(seed), n_frames=n_frames,
-                        width=width, height=height, fps=fps,
+                        width=width, height=height, fps=fps, motion=motion,
                         texture_seed=int(texture_seed if texture_seed is not None else derive_seed(seed, 2)), **spec)
 
 
 def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, height: int = 720,
-                seed: int = 0, n_textures: int = 4) -> list[SequenceSpec]:
+                seed: int = 0, n_textures: int = 4, motion: str = "uav123") -> list[SequenceSpec]:
     """The default suite: sequence ``i`` is named ``syn<i+1>_<scenario>``, stages the scenario
     ``SCENARIOS[i % 5]`` and depends only on ``(seed, i)`` (not on ``n_sequences``); ground
-    textures are shared by groups of sequences (``n_textures`` different grounds)."""
+    textures are shared by groups of sequences (``n_textures`` different grounds); ``motion``
+    is the camera model of every sequence (:data:`MOTIONS`)."""
     if n_sequences < 1:
         raise ValueError(f"n_sequences must be >= 1, got {n_sequences}")
     specs = []
@@ -85,7 +94,7 @@ def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, h
         sp = make_spec(derive_seed(seed, 100, i), n_frames, width, height,
                        name=f"syn{i + 1:03d}_{SCENARIOS[i % len(SCENARIOS)]}",
                        scenario=SCENARIOS[i % len(SCENARIOS)],
-                       texture_seed=derive_seed(seed, 200, i % max(1, n_textures)))
+                       texture_seed=derive_seed(seed, 200, i % max(1, n_textures)), motion=motion)
         if sp.occlusion != "none":  # alternate full and partial occlusions through the suite
             sp = dataclasses.replace(sp, occlusion="full" if (i // len(SCENARIOS)) % 2 == 0 else "partial")
         specs.append(sp)

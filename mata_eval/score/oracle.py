@@ -17,9 +17,9 @@ from typing import Iterable
 import numpy as np
 
 from .metrics import SequenceScores, score_sequence
-from .scheduler import ProtocolPreset, SequenceRun, run_sequence
-from .sequence import Sequence
-from .types import Box, TrackerOutput
+from ..scheduler import ProtocolPreset, SequenceRun, run_sequence
+from ..sequence import Sequence
+from ..types import Box, TrackerOutput
 
 
 class PerfectTracker:
