@@ -16,10 +16,10 @@ from typing import Iterable
 
 import numpy as np
 
+from ..core.sequence import Sequence
+from ..core.types import Box, TrackerOutput
+from ..run.scheduler import ProtocolPreset, SequenceRun, run_sequence
 from .metrics import SequenceScores, score_sequence
-from ..scheduler import ProtocolPreset, SequenceRun, run_sequence
-from ..sequence import Sequence
-from ..types import Box, TrackerOutput
 
 
 class PerfectTracker:

@@ -26,7 +26,7 @@ from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 
-from ..score.metrics import iou
+from .metrics import iou
 
 #: Frame lags of the target statistics (1 frame, 0.1 s and 0.33 s at 30 fps).
 LAGS = (1, 3, 10)
