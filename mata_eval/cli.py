@@ -120,7 +120,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         names = write_suite(args.out, args.n_sequences, args.n_frames, args.width, args.height, args.seed,
-                            jobs=args.jobs, quality=args.quality, progress=True, overwrite=args.force)
+                            motion=args.motion, jobs=args.jobs, quality=args.quality, progress=True,
+                            overwrite=args.force)
     except (FileExistsError, ValueError) as e:
         print(f"mata-eval synth: {e}")
         return 2
@@ -643,6 +644,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=1280, help="frame width (default 1280)")
     p.add_argument("--height", type=int, default=720, help="frame height (default 720)")
     p.add_argument("--seed", type=int, default=0, help="suite seed (default 0)")
+    p.add_argument("--motion", choices=("uav123", "legacy"), default="uav123",
+                   help="camera model: uav123 (default; image-plane motion matched to UAV123) or legacy "
+                        "(generator version 3, the target nearly still in the image)")
     p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--quality", type=int, default=90, help="JPEG quality (default 90)")
     p.add_argument("--force", action="store_true", help="replace an existing suite in OUT")

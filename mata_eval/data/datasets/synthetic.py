@@ -13,6 +13,7 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from ...core.hooks import hookimpl
 from ...core.params import param
@@ -41,6 +42,9 @@ class SyntheticDataset:
         width: int = param(1280, "frame width in pixels")
         height: int = param(720, "frame height in pixels")
         seed: int = param(0, "generation seed: same seed, same pixels, names and attributes")
+        motion: Literal["uav123", "legacy"] = param(
+            "uav123", "camera model: uav123 (image-plane motion matched to UAV123) or legacy "
+                      "(generator version 3: the target nearly still in the image)")
         sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
         jobs: int = param(2, "worker processes used to generate the suite")
 
@@ -55,7 +59,7 @@ class SyntheticDataset:
     def generation(self) -> dict:
         p = self.params
         return {"n_sequences": p.n_sequences, "n_frames": p.n_frames, "width": p.width, "height": p.height,
-                "seed": p.seed}
+                "seed": p.seed, "motion": p.motion}
 
     @property
     def root(self) -> Path:

@@ -186,23 +186,23 @@ class DroneCamera:
     """Parameters of :func:`drone_camera` (``motion: uav123``), in seconds and image units so that
     the camera does not depend on the frame rate or the render size. Chosen on the UAV123 ground
     truth's image-plane statistics and its 10 Hz perfect-tracker NT2F (``benchmarks/oracle.py``),
-    pooled over two 60-sequence samples (seeds 0 and 1); camera rates checked against grid-LK
+    pooled over three 60-sequence samples (seeds 0, 1, 2, 320x180); camera rates checked against grid-LK
     homographies of real drone footage (docs/decisions/data.md)."""
 
     yaw_rate: float = 0.12                   # rad/s: std of the smooth yaw-rate drift (corr. 0.67 s)
-    zoom_rate: float = 0.085                 # 1/s: median std of the log-zoom rate drift (corr. 1 s)
+    zoom_rate: float = 0.09                  # 1/s: median std of the log-zoom rate drift (corr. 1 s)
     zoom_spread: float = 0.6                 # std of its log across sequences
     lag: tuple[float, float] = (0.3, 0.8)    # s: the camera matches the target's velocity this late
     recentre: tuple[float, float] = (1.5, 3.0)  # s: and brings the pursuit point back this slowly
-    wander: float = 0.47                     # target sizes/s: median std of the framing error's velocity
+    wander: float = 0.45                     # target sizes/s: median std of the framing error's velocity
     wander_spread: float = 0.4               # std of its log across sequences (calm or busy operators)
-    wander_burst: float = 1.25               # std of its log within a sequence (spells, corr. 2 s)
+    wander_burst: float = 1.5                # std of its log within a sequence (spells, corr. 2 s)
     wander_corr: float = 0.15                # s: correlation time of that velocity
     wander_leak: float = 4.0                 # s: the framing error leaks back to zero over this time
-    reframe_rate: float = 0.2                # re-framing pans per second (Poisson)
+    reframe_rate: float = 0.16               # re-framing pans per second (Poisson)
     reframe_size: tuple[float, float] = (0.03, 0.12)  # image widths, log-uniform
     reframe_time: tuple[float, float] = (0.25, 0.6)   # s: duration of a pan
-    max_offset: float = 0.3                  # image widths: the framing error saturates here
+    max_offset: float = 0.35                 # image heights: the framing error saturates here
     jitter: float = 1.0                      # px at 1280 wide: handheld-like shake (corr. 2 frames)
 
 
@@ -265,7 +265,7 @@ def drone_camera(rng: np.random.Generator, spec: SequenceSpec, P: np.ndarray, le
         a = rng.uniform(0, 2 * np.pi)
         err += _smoothstep((np.arange(n) - k0 + 1) / d)[:, None] * (size_px / zoom[k0]) * np.array([np.cos(a), np.sin(a)])
         events.append({"kind": "reframe", "frame": k0, "frames": d})
-    reach = c.max_offset * W / zoom[:, None]
+    reach = c.max_offset * spec.height / zoom[:, None]
     norm = np.linalg.norm(err, axis=1, keepdims=True)
     err *= reach * np.tanh(norm / reach) / np.maximum(norm, 1e-12)
     shake = np.stack([_smooth_noise(rng, n, c.jitter * s, 2) for _ in range(2)], axis=1) / zoom[:, None]

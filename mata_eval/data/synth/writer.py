@@ -81,20 +81,21 @@ SUITE_MARKER = "synth.json"
 
 
 def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, width: int = 1280,
-                height: int = 720, seed: int = 0, *, jobs: int = 2, quality: int = 90,
-                specs: list[SequenceSpec] | None = None, progress: bool = False,
+                height: int = 720, seed: int = 0, *, motion: str = "uav123", jobs: int = 2,
+                quality: int = 90, specs: list[SequenceSpec] | None = None, progress: bool = False,
                 overwrite: bool = False) -> list[str]:
     """Generate a suite into ``root`` in the UAV123 layout, atomically: everything is written
     into a temporary sibling folder that is renamed to ``root`` when complete (``synth.json``,
-    the generation parameters, inside). A crash leaves no half suite at ``root``. Returns the
+    the generation parameters, inside). ``motion``: the camera model (``uav123``, the default,
+    or ``legacy``, generator version 3's). A crash leaves no half suite at ``root``. Returns the
     sequence names. Raises FileExistsError when ``root`` already holds something (a suite, unless
     ``overwrite``; anything else, always), also when another process completed it meanwhile."""
     root = Path(root)
     suite = None
     if specs is None:
-        specs = suite_specs(n_sequences, n_frames, width, height, seed)
+        specs = suite_specs(n_sequences, n_frames, width, height, seed, motion=motion)
         suite = {"n_sequences": n_sequences, "n_frames": n_frames, "width": width, "height": height,
-                 "seed": seed}
+                 "seed": seed, "motion": motion}
     names = [sp.name for sp in specs]
     if len(set(names)) != len(names):
         raise ValueError(f"sequence names must be unique, got {names}")
