@@ -3,11 +3,12 @@ UAV123, DTB70, UAVDT (ground truth from ../shared/data/annotations) and the synt
 by side, each with its ratio to UAV123 (issue 15; docs/decisions/data.md "Motion statistics").
 
     python benchmarks/oracle.py [--n-sequences 20] [--n-frames 300] [--width 1280] [--height 720]
-                                [--seed 0] [--motion uav123 legacy] [--no-camera]
+                                [--seed 0] [--motion uav123 legacy] [--profile default] [--no-camera]
 
 Oracle: a tracker that returns the ground-truth box, under EOP at 30 Hz with one frame of
 latency and at 10 Hz with one period (paper section 3.1), through the project's scheduler, scored
-with its NT2F. Target: the default synthetic suite (``--motion uav123``) within 10 % of UAV123 on
+with its NT2F (metric profile ``--profile``: ``default`` is eq. nt2f, ``T_f / N`` over every frame;
+``nt2f-valid`` counts only frames with ground truth, the reading issue 15's figures used). Target: the default synthetic suite (``--motion uav123``) within 10 % of UAV123 on
 the 10 Hz NT2F and on the motion statistics. Camera motion: grid-LK homographies (block B,
 ``grid_lk`` defaults) of the real sequences in ../shared/data/sequences, the exact homographies
 of the synthetic suite. The synthetic suite is rendered in memory (nothing written).
@@ -79,9 +80,9 @@ def synthetic(args: argparse.Namespace, motion: str) -> tuple[list[Sequence], np
     return seqs, rates
 
 
-def row(seqs: list[Sequence], eop) -> list[float]:
-    n30 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=30)))).nt2f
-    n10 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=10)))).nt2f
+def row(seqs: list[Sequence], eop, profile: str) -> list[float]:
+    n30 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=30)), profile)).nt2f
+    n10 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=10)), profile)).nt2f
     motion = target_motion(s.groundtruth for s in seqs)
     return [f(n30, n10, motion) for _, f in COLUMNS]
 
@@ -105,6 +106,7 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=720)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--motion", nargs="+", default=["uav123", "legacy"], help="synthetic camera models to compare")
+    ap.add_argument("--profile", default="default", help="metric profile of the NT2F (default: eq. nt2f)")
     ap.add_argument("--no-camera", action="store_true", help="skip the camera statistics of real footage")
     args = ap.parse_args()
     t0, c0 = time.perf_counter(), time.process_time()
@@ -117,8 +119,8 @@ def main() -> None:
         name = f"synthetic/{motion}"
         data[name] = seqs
         cams[f"{name} (true H)"] = rates
-    rows = {name: row(seqs, eop) for name, seqs in data.items()}
-    print(f"perfect tracker under EOP (NT2F) and target motion (medians unless p90; d = centre shift / "
+    rows = {name: row(seqs, eop, args.profile) for name, seqs in data.items()}
+    print(f"perfect tracker under EOP (NT2F, profile {args.profile}) and target motion (medians unless p90; d = centre shift / "
           f"sqrt(wh) over 1, 3, 10 frames; scale = |log size ratio| over 10 frames); (ratio to UAV123). "
           f"Synthetic: {args.n_sequences} x {args.n_frames} frames, {args.width}x{args.height}, seed {args.seed}")
     print_table("datasets (ground truth)", [h for h, _ in COLUMNS], rows, "UAV123")

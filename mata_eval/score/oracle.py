@@ -54,10 +54,12 @@ def oracle_run(sequence: Sequence, protocol: ProtocolPreset) -> SequenceRun:
                         np.random.default_rng(0), feedback=False)
 
 
-def oracle_scores(sequences: Iterable[Sequence], protocol: ProtocolPreset) -> list[SequenceScores]:
-    """Scores (default metric profile) of the perfect tracker on each sequence."""
+def oracle_scores(sequences: Iterable[Sequence], protocol: ProtocolPreset,
+                  profile: str = "default") -> list[SequenceScores]:
+    """Scores of the perfect tracker on each sequence (metric ``profile``)."""
     out = []
     for seq in sequences:
         run = oracle_run(seq, protocol)
-        out.append(score_sequence(run.boxes, seq.groundtruth, scored=run.scored, annotated=seq.annotated))
+        out.append(score_sequence(run.boxes, seq.groundtruth, profile=profile, scored=run.scored,
+                                  annotated=seq.annotated))
     return out
