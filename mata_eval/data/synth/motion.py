@@ -186,8 +186,8 @@ class DroneCamera:
     """Parameters of :func:`drone_camera` (``motion: uav123``), in seconds and image units so that
     the camera does not depend on the frame rate or the render size. Chosen on the UAV123 ground
     truth's image-plane statistics and its 10 Hz perfect-tracker NT2F (``benchmarks/oracle.py``),
-    pooled over three 60-sequence samples (seeds 0, 1, 2, 320x180); camera rates checked against grid-LK
-    homographies of real drone footage (docs/decisions/data.md)."""
+    pooled over three 60-sequence samples (seeds 0, 1, 2 at 320x180); camera rates checked
+    against grid-LK homographies of real drone footage (docs/decisions/data.md)."""
 
     yaw_rate: float = 0.12                   # rad/s: std of the smooth yaw-rate drift (corr. 0.67 s)
     zoom_rate: float = 0.09                  # 1/s: median std of the log-zoom rate drift (corr. 1 s)
@@ -240,7 +240,7 @@ def drone_camera(rng: np.random.Generator, spec: SequenceSpec, P: np.ndarray, le
     zoom = np.exp(np.clip(logzoom, np.log(0.75), np.log(1.9)))
 
     # Pursuit: velocity matched with a lag, position re-centred slowly.
-    lag, recentre = rng.uniform(*c.lag) * fps, rng.uniform(*c.recentre) * fps
+    lag, recentre = (max(1.0, rng.uniform(*r) * fps) for r in (c.lag, c.recentre))  # in frames
     v_target = np.diff(P, axis=0, prepend=P[:1])
     L = np.empty((n, 2))
     L[0] = P[0]
