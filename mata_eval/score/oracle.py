@@ -24,7 +24,8 @@ from .metrics import SequenceScores, score_sequence
 
 class PerfectTracker:
     """Returns the ground-truth box of the frame it is handed (the last valid one where the
-    ground truth is NaN). The "image" it is handed is the frame index (see :func:`oracle_run`)."""
+    ground truth is NaN). The "image" it is handed is a 1x1 array holding the frame index (see
+    :func:`oracle_run`)."""
 
     def __init__(self, groundtruth: np.ndarray):
         self.groundtruth = np.asarray(groundtruth, dtype=float)
@@ -34,7 +35,7 @@ class PerfectTracker:
         self.last = box
 
     def track(self, frame_index: np.ndarray, prior: object = None) -> TrackerOutput:
-        g = self.groundtruth[int(frame_index)]
+        g = self.groundtruth[int(frame_index[0, 0])]
         box = Box.from_array(g)
         if box.is_valid:
             self.last = box
@@ -42,13 +43,13 @@ class PerfectTracker:
 
 
 def _frame_index(k: int) -> np.ndarray:
-    return np.array(k)
+    return np.full((1, 1), k, dtype=np.int64)
 
 
 def oracle_run(sequence: Sequence, protocol: ProtocolPreset) -> SequenceRun:
     """The perfect tracker on ``sequence`` under ``protocol`` (no egomotion, no estimator: the
     tracker's output is held between its publishes). No image is read: the sequence's frames
-    are replaced by their indices."""
+    are replaced by 1x1 arrays holding their indices."""
     indexed = dataclasses.replace(sequence, loader=_frame_index)
     return run_sequence(indexed, PerfectTracker(sequence.groundtruth), None, None, protocol,
                         np.random.default_rng(0), feedback=False)
