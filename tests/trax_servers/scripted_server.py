@@ -17,7 +17,7 @@ import time
 import zlib
 
 import cv2
-from trax import Image, ImageChannel, MemoryImage, Region, Server, TraxStatus
+from trax import ImageChannel, MemoryImage, Region, Server, TraxStatus
 from trax.region import Rectangle, Special
 
 
