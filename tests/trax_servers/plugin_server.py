@@ -21,7 +21,7 @@ from mata_eval_plugins.trackers.vittrack import VitTrack
 PLUGINS = {"nanotrack": NanoTrack, "vittrack": VitTrack}
 
 
-def bgr(image) -> "cv2.Mat":
+def bgr(image):
     """The frame as the plugin expects it (BGR), from a memory (RGB) or path image."""
     if isinstance(image, MemoryImage):
         return cv2.cvtColor(image.array(), cv2.COLOR_RGB2BGR)
