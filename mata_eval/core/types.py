@@ -10,7 +10,8 @@ Conventions used everywhere in mata-eval:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Callable, Generic, Mapping, TypeVar
+from functools import cached_property
+from typing import Any, Callable, Generic, Hashable, Mapping, TypeVar
 
 import numpy as np
 
@@ -64,17 +65,54 @@ class Box:
         return bool(np.all(np.isfinite(self.as_array())) and self.w > 0 and self.h > 0)
 
 
+class FrameImage(np.ndarray):
+    """A camera frame's BGR image as the scheduler hands it to the blocks: a plain ``ndarray``
+    to any plugin, plus a per-frame cache of what blocks derive from it (grey image, shrunk
+    image...), so that each product is computed once per frame however many blocks ask for it.
+
+    Use :func:`derived`, which also works on a plain array. Slices and arithmetic results of a
+    ``FrameImage`` are not the frame any more and carry no cache. A subclass rather than a
+    wrapper so that the block interfaces (``track(image)``, ``estimate(image)``) and third-party
+    plugins see an ordinary image."""
+
+    _derived: dict | None
+
+    def __new__(cls, image: np.ndarray) -> "FrameImage":
+        obj = np.asarray(image).view(cls)
+        obj._derived = {}
+        return obj
+
+    def __array_finalize__(self, obj: object) -> None:
+        self._derived = None  # a view or a result of an operation: not the frame itself
+
+
+def derived(image: np.ndarray, key: Hashable, make: Callable[[np.ndarray], T]) -> T:
+    """``make(image)``, computed once per frame and shared when ``image`` is a
+    :class:`FrameImage` (``key`` names the product and every parameter it depends on), computed
+    on each call otherwise. Arrays are returned read-only: they are shared between blocks."""
+    cache = getattr(image, "_derived", None)
+    if cache is None:
+        return make(image)
+    if key not in cache:
+        value = make(image.view(np.ndarray))
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+        cache[key] = value
+    return cache[key]
+
+
 @dataclass(frozen=True)
 class Frame:
-    """Camera frame ``k`` at time ``t = k / fps``; the image is read only when asked for."""
+    """Camera frame ``k`` at time ``t = k / fps``. The image is read on first access, then
+    kept (one decode per frame) as a :class:`FrameImage` shared by the blocks."""
 
     k: int
     t: float
     loader: Callable[[], np.ndarray] = field(repr=False, compare=False)
 
-    @property
-    def image(self) -> np.ndarray:
-        return self.loader()
+    @cached_property
+    def image(self) -> FrameImage:
+        return FrameImage(self.loader())
 
 
 @dataclass(frozen=True, eq=False)

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..core.sequence import FrameReadError, Sequence
 from .timing_profile import BlockProfile
-from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
+from ..core.types import Box, Estimate, FrameImage, Motion, Stamped, TrackerOutput
 
 #: The blocks. ``camera`` only delivers frames.
 BLOCKS = ("egomotion", "tracker", "estimator")
@@ -412,7 +412,8 @@ def sequence_steps(
             nonlocal image, bad
             if image is None and not bad:
                 try:
-                    image = read_frame(k)
+                    # one read; blocks share what they derive from it (FrameImage)
+                    image = FrameImage(read_frame(k))
                 except FrameReadError as exc:
                     if not skip_bad_frames or k == 0:
                         raise

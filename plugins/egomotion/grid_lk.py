@@ -13,7 +13,7 @@ import numpy as np
 
 from mata_eval.hooks import hookimpl
 from mata_eval.params import param
-from mata_eval.types import Motion
+from mata_eval.types import Motion, derived
 
 from . import homography_covariance as hc
 
@@ -38,25 +38,29 @@ def normalise_intensity(gray: np.ndarray) -> np.ndarray:
 def prepare_gray(image: object, downscale: float, normalise: bool = False) -> np.ndarray | None:
     """Grey uint8 image shrunk by ``downscale`` (area interpolation), optionally with its global
     gain and offset normalised, or None for input that is not an image (wrong type, dtype,
-    shape, empty)."""
+    shape, empty). On a scheduler frame (:class:`~mata_eval.types.FrameImage`) the grey image
+    and the shrunk one are computed once per frame and shared with every block that asks."""
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.size == 0:
         return None
-    if image.ndim == 3 and image.shape[2] == 3:
-        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 4:
-        gray = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
-    elif image.ndim == 3 and image.shape[2] == 1:
-        gray = image[:, :, 0]
-    elif image.ndim == 2:
-        gray = image
-    else:
+    if not (image.ndim == 2 or (image.ndim == 3 and image.shape[2] in (1, 3, 4))):
         return None
-    h, w = gray.shape
+    gray = derived(image, "gray", to_gray)
     if downscale > 1.0:
+        h, w = gray.shape
         size = (max(1, round(w / downscale)), max(1, round(h / downscale)))
-        gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-    gray = np.ascontiguousarray(gray)
-    return normalise_intensity(gray) if normalise else gray
+        gray = derived(image, ("gray", size), lambda _: cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
+    if normalise:
+        gray = derived(image, ("gray", gray.shape, "normalised"), lambda _: normalise_intensity(gray))
+    return gray
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """Full-resolution grey uint8 image of a BGR, BGRA or one-channel image (OpenCV's weights)."""
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3 and image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    return np.ascontiguousarray(image.reshape(image.shape[:2]))
 
 
 def to_full_resolution(pts: np.ndarray, small_shape: tuple[int, ...], full_shape: tuple[int, ...]) -> np.ndarray:
