@@ -157,39 +157,50 @@ def _parse_sets(items: Sequence[str] | None) -> dict[str, Any]:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    """Score one or more results folders against one dataset, in one process: the annotations
+    are read once and every folder is one row of the table."""
     from .report.overview import render_table
     from .score.evaluate import detect_layout, evaluate_results, save_scores
 
+    if len(args.results_dirs) > 1 and (args.name or args.output):
+        print("error: --name and --output take one RESULTS_DIR (each folder is named after itself; "
+              "a mata-eval run folder gets its own scores.json)", file=sys.stderr)
+        return 2
+    all_scores = []
     try:
         seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))
-        layout = args.layout
-        if layout == "mata" or (layout == "auto" and detect_layout(Path(args.results_dir)) == "mata"):
-            scores = evaluate_results(args.results_dir, seqs, args.profile, layout="mata")
-            if not args.no_save:
-                try:
-                    print(f"wrote {save_scores(args.results_dir, scores)}")
-                except OSError as exc:
-                    print(f"error: cannot write scores.json into {args.results_dir} ({exc.strerror}); "
-                          f"use --no-save, or --output DIR to write it elsewhere", file=sys.stderr)
-                    return 2
-        else:
-            scores = evaluate_results(args.results_dir, seqs, args.profile, layout=layout, name=args.name)
+        for results_dir in args.results_dirs:
+            layout = args.layout
+            if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
+                scores = evaluate_results(results_dir, seqs, args.profile, layout="mata")
+                if not args.no_save:
+                    try:
+                        print(f"wrote {save_scores(results_dir, scores)}")
+                    except OSError as exc:
+                        print(f"error: cannot write scores.json into {results_dir} ({exc.strerror}); "
+                              f"use --no-save, or --output DIR to write it elsewhere", file=sys.stderr)
+                        return 2
+            else:
+                scores = evaluate_results(results_dir, seqs, args.profile, layout=layout, name=args.name)
+            all_scores.append(scores)
     except (FileNotFoundError, ValueError, KeyError) as exc:
         print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
     if args.output:
-        print(f"wrote {save_scores(Path(args.output), scores)}")
-    print(render_table([scores], "terminal"))
+        print(f"wrote {save_scores(Path(args.output), all_scores[0])}")
+    print(render_table(all_scores, "terminal"))
     if args.challenges:
-        print(render_table([scores], "terminal", table="challenges"))
-    if scores.missing:
-        print(f"{len(scores.missing)} sequence(s) without results: {', '.join(scores.missing[:10])}"
-              + (" ..." if len(scores.missing) > 10 else ""))
-    if scores.meta.get("unmatched_results"):
-        un = scores.meta["unmatched_results"]
-        print(f"{len(un)} result file(s) match no sequence of {args.dataset}: {', '.join(un[:10])}"
-              + (" ..." if len(un) > 10 else ""))
-    return 0 if scores.sequences else 1
+        print(render_table(all_scores, "terminal", table="challenges"))
+    for scores in all_scores:
+        where = f" in {scores.path}" if len(all_scores) > 1 else ""
+        if scores.missing:
+            print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
+                  + (" ..." if len(scores.missing) > 10 else ""))
+        if scores.meta.get("unmatched_results"):
+            un = scores.meta["unmatched_results"]
+            print(f"{len(un)} result file(s){where} match no sequence of {args.dataset}: {', '.join(un[:10])}"
+                  + (" ..." if len(un) > 10 else ""))
+    return 0 if all(s.sequences for s in all_scores) else 1
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -474,10 +485,12 @@ def _add_eval(subparsers) -> None:
     from .score.evaluate import LAYOUTS
 
     p = subparsers.add_parser(
-        "eval", help="score a results folder (mata-eval run, pysot, got10k or pytracking layout)",
-        description="Score a results folder against a dataset's annotations (no images are read) and "
+        "eval", help="score results folders (mata-eval run, pysot, got10k or pytracking layout)",
+        description="Score results folders against a dataset's annotations (no images are read) and "
                     "print the table. A mata-eval run folder gets its scores.json (re)written.")
-    p.add_argument("results_dir", metavar="RESULTS_DIR", help="folder with one result file per sequence")
+    p.add_argument("results_dirs", nargs="+", metavar="RESULTS_DIR",
+                   help="folder with one result file per sequence; several folders are scored in one "
+                        "process (the annotations read once) and shown as the rows of one table")
     p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
     p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="another dataset parameter (repeatable)")
@@ -662,6 +675,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv == ["--version"]:  # answered before the parser imports what its choices come from
+        print(f"mata-eval {__version__}")
+        return 0
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

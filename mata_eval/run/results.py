@@ -3,6 +3,8 @@ prediction file ``<seq>.txt`` is written last, so its presence marks a finished 
 
 from __future__ import annotations
 
+import io
+
 import json
 import os
 import platform
@@ -82,20 +84,32 @@ def format_predictions(boxes: np.ndarray) -> str:
 
 def read_predictions(path: Path) -> np.ndarray:
     """Read a prediction file written by :func:`format_predictions` (or any comma/tab/space
-    separated ``x,y,w,h`` file); raises ValueError naming the file and line."""
-    rows = []
-    for i, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        if not line.strip():
-            continue
-        parts = line.replace("\t", ",").replace(" ", ",").split(",")
-        parts = [p for p in parts if p != ""]
-        try:
-            if len(parts) != 4:
-                raise ValueError
-            rows.append([float(p) for p in parts])
-        except ValueError:
-            raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}") from None
-    return np.asarray(rows, dtype=float).reshape(-1, 4)
+    separated ``x,y,w,h`` file); raises ValueError naming the file and line.
+
+    numpy's parser reads the file (it rounds like ``float()``); a file it rejects is read again
+    line by line to name the first bad line."""
+    text = Path(path).read_text()
+    if not text.strip():
+        return np.empty((0, 4))
+    try:
+        boxes = np.loadtxt(io.StringIO(text.replace(",", " ")), dtype=float, comments=None, ndmin=2)
+        if boxes.shape[1] == 4:
+            return boxes
+    except ValueError:
+        pass
+    for i, line in enumerate(text.splitlines(), start=1):
+        parts = line.replace(",", " ").split()
+        if parts and not _are_numbers(parts, 4):
+            raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}")
+    raise ValueError(f"{path}: expected 4 numbers x,y,w,h per line")  # not reached: a line is bad
+
+
+def _are_numbers(parts: list[str], n: int) -> bool:
+    try:
+        [float(p) for p in parts]
+    except ValueError:
+        return False
+    return len(parts) == n
 
 
 def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, trace_csv: str) -> None:

@@ -8,6 +8,7 @@ Everything here reads text only; no image is ever opened. Bad input raises
 from __future__ import annotations
 
 import json
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Iterable, Mapping
 import numpy as np
 
 from ...core.errors import UserError
+from ...core.sequence import FramePaths
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
@@ -251,13 +253,34 @@ def _natural_key(name: str) -> tuple:
     return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", name))
 
 
-def list_images(folder: str | Path) -> list[str]:
-    """Image files of ``folder`` in natural order (``2.jpg`` before ``10.jpg``); [] if absent."""
-    folder = Path(folder)
-    if not folder.is_dir():
+def image_names(folder: str | Path) -> list[str]:
+    """Names of the image files of ``folder`` in natural order (``2.jpg`` before ``10.jpg``);
+    [] if absent. One directory read, no stat per file."""
+    try:
+        with os.scandir(folder) as it:
+            names = [e.name for e in it if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and e.is_file()]
+    except (FileNotFoundError, NotADirectoryError):
         return []
-    names = [p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS and p.is_file()]
-    return [str(folder / n) for n in sorted(names, key=_natural_key)]
+    return sorted(names, key=_natural_key)
+
+
+def list_images(folder: str | Path) -> list[str]:
+    """Paths of the image files of ``folder`` in natural order; [] if absent."""
+    return [os.path.join(folder, n) for n in image_names(folder)]
+
+
+def frame_paths(folder: Path, n: int, numbered: str, where: Path, hint: str = "") -> FramePaths:
+    """The ``n`` frames of a sequence: the images of ``folder`` when it exists (their count is
+    checked now, against the ``n`` ground-truth lines of ``where``), otherwise the names
+    ``numbered.format(k)``, k = 1..n, that the dataset's own tools give them (pysot's json).
+    Paths are joined on first access (scoring never asks)."""
+    names = image_names(folder)
+    if names and len(names) != n:
+        raise DatasetError(f"{where}: {n} ground-truth lines but {len(names)} frames in {folder}{hint}")
+    root = str(folder)
+    if names:
+        return FramePaths(lambda: [os.path.join(root, x) for x in names], n)
+    return FramePaths(lambda: [os.path.join(root, numbered.format(k)) for k in range(1, n + 1)], n)
 
 
 def select(names: list[str], wanted: list[str] | None, where: str) -> list[str]:

@@ -16,7 +16,7 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import (DatasetError, annotation_files, list_images, read_attribute_flags, read_boxes,
+from .annotations import (DatasetError, annotation_files, frame_paths, read_attribute_flags, read_boxes,
                           select)
 
 #: Flag order of the kit's att files (ATTRIBUTE_ORDER): scale variation, aspect ratio variation,
@@ -78,13 +78,9 @@ class DTB70:
         out = []
         for name in names:
             gt = read_boxes(files[name], allow_polygons=False)
-            folder = self.root / name / "img"
-            found = list_images(folder)
-            if found and len(found) != len(gt):
-                raise DatasetError(f"{files[name]}: {len(gt)} ground-truth lines but {len(found)} frames in {folder}")
             attrs = read_attribute_flags(att_dir / f"{name}.txt", ATTRIBUTES) if att_dir else frozenset()
-            # names computed only while the folder is absent (pysot's DTB70.json: img/00001.jpg)
-            frames = tuple(found) or tuple(str(folder / f"{k:05d}.jpg") for k in range(1, len(gt) + 1))
+            # names of pysot's DTB70.json (img/00001.jpg) while the folder is absent
+            frames = frame_paths(self.root / name / "img", len(gt), "{:05d}.jpg", files[name])
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, attributes=attrs,
                                 frame_paths=frames))
         return out

@@ -12,13 +12,14 @@ Listing sequences reads annotations only; frames are read by ``Sequence.image(k)
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...core.hooks import hookimpl
 from ...core.params import param
-from ...core.sequence import Sequence
-from .annotations import (DatasetError, FrameRange, list_images, read_attribute_flags, read_boxes,
+from ...core.sequence import FramePaths, Sequence
+from .annotations import (DatasetError, FrameRange, frame_paths, read_attribute_flags, read_boxes,
                           read_frame_ranges, select)
 
 #: Flag order of ``anno/UAV123/att/*.txt`` (the dataset's ATTRIBUTE_ORDER.txt).
@@ -137,16 +138,12 @@ class _UAV123Layout:
             if len(rng) != len(gt):
                 raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines, but the frame-range table gives "
                                    f"{name} frames {rng.start}..{rng.end} of {rng.video} ({len(rng)} frames)")
-            folder = self.frames_dir / rng.video
-            frames = tuple(str(folder / f) for f in rng.frame_names())
+            folder = str(self.frames_dir / rng.video)
+            frames = FramePaths(lambda: [os.path.join(folder, f) for f in rng.frame_names()], len(rng))
             meta = {"video": rng.video, "start_frame": rng.start, "end_frame": rng.end}
         else:
-            folder = self.frames_dir / name
-            found = list_images(folder)
-            if found and len(found) != len(gt):
-                raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines but {len(found)} frames in {folder} "
-                                   "(a sequence missing from the frame-range table is read as the whole video)")
-            frames = tuple(found) if found else tuple(str(folder / f"{k:06d}.jpg") for k in range(1, len(gt) + 1))
+            frames = frame_paths(self.frames_dir / name, len(gt), "{:06d}.jpg", gt_path,
+                                 " (a sequence missing from the frame-range table is read as the whole video)")
             meta = {"video": name, "start_frame": 1, "end_frame": len(gt)}
         att_dir = self.anno_dir / "att"
         attrs = read_attribute_flags(att_dir / f"{name}.txt", ATTRIBUTES) if att_dir.is_dir() else frozenset()

@@ -17,7 +17,7 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import DatasetError, list_images, read_attribute_flags, read_boxes, select
+from .annotations import DatasetError, frame_paths, read_attribute_flags, read_boxes, select
 
 #: Flag order of ``att/<seq>_att.txt``: background clutter, camera motion, object motion, small
 #: object, illumination variations, object blur, scale variations, long-term tracking, large occlusion.
@@ -78,11 +78,7 @@ class UAVDT:
         out = []
         for name in names:
             gt = read_boxes(files[name], allow_polygons=False)
-            folder = frames_root / name
-            found = list_images(folder) if folder.is_dir() else []
-            if found and len(found) != len(gt):
-                raise DatasetError(f"{files[name]}: {len(gt)} ground-truth lines but {len(found)} frames in {folder}")
-            frames = tuple(found) or tuple(str(folder / f"img{k:06d}.jpg") for k in range(1, len(gt) + 1))
+            frames = frame_paths(frames_root / name, len(gt), "img{:06d}.jpg", files[name])
             attrs = (read_attribute_flags(att_dir / f"{name}_att.txt", ATTRIBUTES)
                      if att_dir.is_dir() else frozenset())
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, attributes=attrs,

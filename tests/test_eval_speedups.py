@@ -1,0 +1,109 @@
+"""Scoring in one process: several folders per `mata-eval eval`, numpy-parsed prediction files,
+frame paths built only when a frame is read, `--version` without the packages."""
+
+from __future__ import annotations
+
+import pickle
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+
+from mata_eval import __version__, cli
+from mata_eval.core.sequence import FramePaths, FrameReadError
+from mata_eval.data.datasets.annotations import DatasetError, frame_paths
+from mata_eval.run.results import read_predictions
+
+
+def _python_parse(text: str) -> np.ndarray:
+    """Reference: the per-line parser (float() on every field)."""
+    rows = [[float(p) for p in line.replace(",", " ").split()] for line in text.splitlines() if line.strip()]
+    return np.array(rows, dtype=float).reshape(-1, 4)
+
+
+def test_read_predictions_matches_float_on_every_separator(tmp_path):
+    text = ("1,2,3,4\n"
+            "0.1\t0.2\t1e3\t-7.25\n"
+            "\n"
+            "10 20  30 40\n"
+            "5.000000000000001, 6.123456789012345, nan, 8\n"
+            "1e-320,2,3,4\n")  # a subnormal: rounding must match float()
+    f = tmp_path / "s.txt"
+    f.write_text(text)
+    got, want = read_predictions(f), _python_parse(text)
+    assert got.shape == (5, 4)
+    assert np.array_equal(got, want, equal_nan=True)
+    assert got.view(np.uint64)[~np.isnan(got)].tolist() == want.view(np.uint64)[~np.isnan(want)].tolist()
+
+
+@pytest.mark.parametrize("bad, line", [("1,2,3,4\n1,2,3\n", 2), ("1,2,3,4\n\n1,2,x,4\n", 3),
+                                       ("1,2,3,4,5\n", 1)])
+def test_read_predictions_names_the_bad_line(tmp_path, bad, line):
+    f = tmp_path / "s.txt"
+    f.write_text(bad)
+    with pytest.raises(ValueError, match=rf"s\.txt:{line}: expected 4 numbers"):
+        read_predictions(f)
+
+
+def test_empty_prediction_file(tmp_path):
+    f = tmp_path / "s.txt"
+    f.write_text("\n")
+    assert read_predictions(f).shape == (0, 4)
+
+
+def test_frame_paths_are_built_on_first_access_only(tmp_path):
+    calls = []
+    paths = FramePaths(lambda: calls.append(1) or ["a.jpg", "b.jpg"], 2)
+    assert len(paths) == 2 and bool(paths) and calls == []
+    assert paths[1] == "b.jpg" and list(paths) == ["a.jpg", "b.jpg"] and calls == [1]
+    assert pickle.loads(pickle.dumps(paths)) == ("a.jpg", "b.jpg")
+    with pytest.raises(FrameReadError, match="expected 3 frame paths, got 2"):
+        FramePaths(lambda: ["a", "b"], 3)[0]
+
+
+def test_dataset_frame_paths_list_or_name_the_frames(tmp_path):
+    gt = tmp_path / "gt.txt"
+    absent = frame_paths(tmp_path / "img", 3, "{:05d}.jpg", gt)
+    assert list(absent) == [str(tmp_path / "img" / f"{k:05d}.jpg") for k in (1, 2, 3)]
+    (tmp_path / "img").mkdir()
+    for name in ("10.jpg", "2.jpg", "1.png", "notes.txt"):
+        (tmp_path / "img" / name).write_bytes(b"")
+    assert [p.rsplit("/", 1)[1] for p in frame_paths(tmp_path / "img", 3, "{:05d}.jpg", gt)] == \
+        ["1.png", "2.jpg", "10.jpg"]
+    with pytest.raises(DatasetError, match=r"gt\.txt: 4 ground-truth lines but 3 frames"):
+        frame_paths(tmp_path / "img", 4, "{:05d}.jpg", gt)
+
+
+def _rows(out: str) -> dict[str, list[str]]:
+    return {line.split()[0]: line.split()[1:] for line in out.splitlines()[2:] if line.strip()}
+
+
+def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsys):
+    """DTB70, pysot-toolkit profile: SiamAPN++'s published AUC 0.594 and precision 0.789 in the
+    row of a two-folder call, and SiamAPN's row identical to a call of its own."""
+    with zipfile.ZipFile(shared_data / "results" / "DTB70.zip") as z:
+        z.extractall(tmp_path, [n for n in z.namelist()
+                                if n.startswith(("DTB70/SiamAPN++/", "DTB70/SiamAPN/"))])
+    ann = shared_data / "annotations" / "DTB70"
+    common = ["--dataset", "dtb70", "--root", str(ann), "--set", f"annotations={ann}", "--profile", "pysot-toolkit"]
+    both = [str(tmp_path / "DTB70" / t) for t in ("SiamAPN++", "SiamAPN")]
+    assert cli.main(["eval", *both, *common]) == 0
+    rows = _rows(capsys.readouterr().out)
+    assert set(rows) == {"SiamAPN++", "SiamAPN"}
+    header = ["Seqs", "SR", "MSR", "PR", "P@20"]
+    plus = dict(zip(header, rows["SiamAPN++"]))
+    assert plus["Seqs"] == "70" and plus["MSR"] == "59.4" and plus["P@20"] == "78.9"
+    assert cli.main(["eval", both[1], *common]) == 0
+    assert _rows(capsys.readouterr().out)["SiamAPN"] == rows["SiamAPN"]
+    assert cli.main(["eval", *both, *common, "--output", str(tmp_path / "o")]) == 2
+    assert "--name and --output take one RESULTS_DIR" in capsys.readouterr().err
+
+
+def test_version_answers_without_importing_the_packages():
+    code = ("import sys; from mata_eval import cli; rc = cli.main(['--version']); "
+            "print(sorted(m for m in sys.modules if m.startswith('mata_eval.') or m in ('numpy', 'cv2')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines()[0] == f"mata-eval {__version__}"
+    assert eval(out.splitlines()[1]) == ["mata_eval.cli", "mata_eval.core", "mata_eval.core.errors"]  # no numpy
