@@ -107,3 +107,19 @@ def test_version_answers_without_importing_the_packages():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.splitlines()[0] == f"mata-eval {__version__}"
     assert eval(out.splitlines()[1]) == ["mata_eval.cli", "mata_eval.core", "mata_eval.core.errors"]  # no numpy
+
+
+def test_ground_truth_parser_matches_float_and_names_bad_lines(tmp_path):
+    from mata_eval.data.datasets.annotations import AnnotationError, read_boxes
+
+    f = tmp_path / "gt.txt"
+    f.write_text("1,2,3,4\n5;6;7;8\n9\t10 11,12\nNaN,NaN,NaN,NaN\n0.1,0.2,0.30000000000000004,1e-320\n\n")
+    got = read_boxes(f)
+    want = np.array([[1, 2, 3, 4], [5, 6, 7, 8], [9, 10, 11, 12], [np.nan] * 4, [0.1, 0.2, 0.30000000000000004, 1e-320]])
+    assert got.tobytes() == want.tobytes()
+    f.write_text("1,2,3,4\n  \n5,6,7,8\n")
+    with pytest.raises(AnnotationError, match="2.*blank line inside the file"):
+        read_boxes(f)
+    f.write_text("1,2,3,4\n5,6,7\n")
+    with pytest.raises(AnnotationError, match="2.*got 3 value"):
+        read_boxes(f)
