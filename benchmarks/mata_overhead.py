@@ -1,10 +1,11 @@
 """MATA's cost on top of its tracker: CPU of a MATA run (KCF + grid_lk + homography_ekf) against
 the baseline run (KCF alone) under LTP, measured in the same process, interleaved.
 
-    OMP_NUM_THREADS=1 python benchmarks/mata_overhead.py [--frames 60] [--repeat 5]
+    OMP_NUM_THREADS=1 python benchmarks/mata_overhead.py [--frames 60] [--repeat 5] [--decode]
 
 Frames of the real 1280x720 and 1024x540 sequences of ``$MATA_SHARED_DATA/sequences/aerial30``
-are decoded once, before any timing (decoding costs both runs the same). Each repetition runs
+are decoded once, before any timing (decoding costs both runs the same), or with ``--decode`` in
+each run, as ``mata-eval run`` does. Each repetition runs
 the baseline then MATA over every sequence, OpenCV on one thread. Prints, min and median over
 the repetitions:
 - CPU seconds of the baseline run and of the MATA run, and their ratio (target <= 1.25);
@@ -33,10 +34,13 @@ from mata_eval_plugins.trackers.kcf import KCFTracker as KCF
 SEQUENCES = ("MountainBike6", "Surfing06", "S0310", "S0601")
 
 
-def load(root: Path, name: str, frames: int) -> Sequence:
+def load(root: Path, name: str, frames: int, decode: bool) -> Sequence:
     folder = root / name
     gt = np.loadtxt(folder / "groundtruth_rect.txt", delimiter=",")[:frames]
-    images = [cv2.imread(str(p)) for p in sorted((folder / "img").iterdir())[:len(gt)]]
+    paths = tuple(str(p) for p in sorted((folder / "img").iterdir())[:len(gt)])
+    if decode:  # each run reads its frames, as `mata-eval run` does
+        return Sequence(name, gt, fps=30.0, frame_paths=paths)
+    images = [cv2.imread(p) for p in paths]
     return Sequence(name, gt, fps=30.0, loader=images.__getitem__)
 
 
@@ -52,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--decode", action="store_true", help="decode the JPEG frames in each run (counted on both sides)")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     root = Path(os.environ.get("MATA_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
@@ -60,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     if not names:
         print(f"no sequences under {root}: set MATA_SHARED_DATA")
         return 1
-    seqs = [load(root, n, args.frames) for n in names]
+    seqs = [load(root, n, args.frames, args.decode) for n in names]
     base_cpu, mata_cpu, ego_ms, est_ms = [], [], {}, []
     for _ in range(args.repeat):
         b = m = 0.0
@@ -76,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     n_frames = sum(len(s) for s in seqs)
     ratio = np.array(mata_cpu) / np.array(base_cpu)
     print(f"{len(seqs)} sequences ({', '.join(names)}), {n_frames} frames, LTP, KCF, {args.repeat} repetitions, "
-          f"OpenCV threads 1")
+          f"OpenCV threads 1, frames {'decoded in each run' if args.decode else 'decoded before timing'}")
     print(f"  baseline run (KCF)           CPU s  min {min(base_cpu):.3f}  median {np.median(base_cpu):.3f}")
     print(f"  MATA run (KCF+grid_lk+EKF)   CPU s  min {min(mata_cpu):.3f}  median {np.median(mata_cpu):.3f}")
     print(f"  ratio MATA / baseline (per repetition)  min {ratio.min():.3f}  median {np.median(ratio):.3f}  "
