@@ -121,3 +121,45 @@ def test_scheduler_hands_both_blocks_one_shared_frame():
     assert len(grey_calls) == n
     ids = [i for _, i in seen]
     assert [ids[2 * j] == ids[2 * j + 1] for j in range(n - 1)] == [True] * (n - 1)
+
+
+def test_runs_of_a_task_share_one_frame_and_its_products():
+    """Two runs of one sequence advanced in lockstep on a task's shared sequence (one decode per
+    frame, mata_eval.run.tasks): a grey image derived by one run's block is reused by the other's."""
+    from mata_eval.run.scheduler import sequence_steps
+    from mata_eval.run.tasks import shared
+
+    reads, grey_calls = [], []
+
+    class Ego:
+        def initialize(self, image):
+            self.estimate(image)
+
+        def estimate(self, image):
+            derived(image, "gray", lambda a: grey_calls.append(1) or a[..., 0].copy())
+            return Motion.identity()
+
+    class Trk:
+        def initialize(self, image, box):
+            self.box = box
+
+        def track(self, image, prior=None):
+            return TrackerOutput(self.box, 1.0)
+
+    class LTP:
+        def timing(self, fps):
+            return every_frame(fps)
+
+    n = 4
+    seq = shared(Sequence("s", np.tile([10.0, 10.0, 20.0, 20.0], (n, 1)), fps=30.0,
+                          loader=lambda k: reads.append(k) or _image(k, (40, 50, 3))))
+    runs = [sequence_steps(seq, Trk(), Ego(), None, LTP(), np.random.default_rng(0)) for _ in range(2)]
+    done = 0
+    while done < len(runs):
+        done = 0
+        for r in runs:
+            try:
+                next(r)
+            except StopIteration:
+                done += 1
+    assert reads == list(range(n)) and len(grey_calls) == n

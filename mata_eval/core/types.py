@@ -78,6 +78,8 @@ class FrameImage(np.ndarray):
     _derived: dict | None
 
     def __new__(cls, image: np.ndarray) -> "FrameImage":
+        if isinstance(image, FrameImage) and image._derived is not None:
+            return image  # already a frame: keep its cache (the runs of a task share one frame)
         obj = np.asarray(image).view(cls)
         obj._derived = {}
         return obj

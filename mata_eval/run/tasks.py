@@ -23,6 +23,7 @@ from typing import Any, Callable, Generator
 import numpy as np
 
 from ..core.sequence import Sequence
+from ..core.types import FrameImage
 from .config import Experiment, PluginBlock, RunSpec
 from .scheduler import RateWarning, SequenceRun, WallTimeLatency, sequence_steps
 
@@ -141,7 +142,8 @@ def as_run_sees_it(seq: Sequence, spec: RunSpec) -> Sequence:
 
 class LastFrame:
     """``k -> image`` keeping the last frame it read, read-only: the runs of a task ask for frame
-    k in turn before any asks for k + 1, so one read serves them all."""
+    k in turn before any asks for k + 1, so one read serves them all, and one
+    :class:`~mata_eval.core.types.FrameImage` shares what their blocks derive from it."""
 
     def __init__(self, read: Callable[[int], np.ndarray]):
         self.read = read
@@ -150,7 +152,7 @@ class LastFrame:
 
     def __call__(self, k: int) -> np.ndarray:
         if k != self.k:
-            image = self.read(k).view()
+            image = FrameImage(self.read(k))
             image.flags.writeable = False  # shared by every run: no block may draw on it
             self.k, self.image = k, image
         return self.image
