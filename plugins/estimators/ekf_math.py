@@ -34,6 +34,12 @@ def deriv_slice(i: int) -> slice:
     return slice(N_BASE + 2 * i, N_BASE + 2 * i + 2)
 
 
+def box_side(x: np.ndarray) -> float:
+    """sqrt(w h) of the box in the state (0 for a degenerate box): the scale of its noise."""
+    w, h = x[2] - x[0], x[3] - x[1]
+    return float(np.sqrt(max(w * h, 0.0)))
+
+
 # --- the homography projection g and its derivatives (eq. homography) --------------------------
 
 def project(H: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -111,12 +117,18 @@ def taylor(dt: float, n_deriv: int) -> tuple[np.ndarray, np.ndarray]:
     return disp, T
 
 
-def transition(x: np.ndarray, dt: float, n_deriv: int) -> tuple[np.ndarray, np.ndarray]:
+def transition(x: np.ndarray, dt: float, n_deriv: int,
+               box: str = "corners") -> tuple[np.ndarray, np.ndarray]:
     """``f(x)`` and its analytic Jacobian ``F = df/dx``.
 
     Paper eq. ekf_velocity_1 for ``n_deriv = 1``: corners -> g(corner) + J_g(c) v dt, H held,
     v -> J_g(c) v, with J_g evaluated at the box centre c = (tl + br) / 2. Higher models add
-    the Taylor terms (a dt^2/2, j dt^3/6) and map every derivative through J_g(c)."""
+    the Taylor terms (a dt^2/2, j dt^3/6) and map every derivative through J_g(c).
+
+    ``box = "centre"`` (beyond the paper, rotation-safe): the centre goes through H,
+    c -> g(c) + J_g(c) v dt, and the half-size is multiplied by the local scale
+    s = sqrt|det J_g(c)| (:func:`local_scale`), so a roll or yaw of the camera keeps the box's
+    width and height instead of shearing the two corners apart (paper L400-401 moves corners)."""
     n = state_dim(n_deriv)
     xs = x.tolist()
     h = xs[4:13]
@@ -136,21 +148,16 @@ def transition(x: np.ndarray, dt: float, n_deriv: int) -> tuple[np.ndarray, np.n
     disp = (wdisp @ M).reshape(2, 12)       # centre displacement over dt, in the new frame
     nd = (T @ M).reshape(n_deriv, 2, 12)    # derivative j after dt, in the new frame
 
-    uvw_tl, uvw_br = _uvw(h, x1, y1), _uvw(h, x2, y2)
     fx = np.empty(n)
-    d0, d1 = disp[:, 0].tolist()
-    fx[0:4] = (uvw_tl[0] + d0, uvw_tl[1] + d1, uvw_br[0] + d0, uvw_br[1] + d1)
+    F = np.zeros((n, n))
+    if box == "corners":
+        _corners_through_h(fx, F, h, x1, y1, x2, y2, disp)
+    elif box == "centre":
+        _centre_through_h(fx, F, h, x1, y1, x2, y2, disp, uvw_c, Jc)
+    else:
+        raise ValueError(f"box must be 'corners' or 'centre', got {box!r}")
     fx[HOM] = x[HOM]
     fx[N_BASE:] = nd[:, :, 0].reshape(-1)
-
-    F = np.zeros((n, n))
-    half = 0.5 * disp[:, 1:3]
-    F[TL, TL] = np.array(_jp(h, *uvw_tl)) + half
-    F[TL, BR] = half
-    F[BR, TL] = half
-    F[BR, BR] = np.array(_jp(h, *uvw_br)) + half
-    F[TL, HOM] = np.array(_jh(x1, y1, *uvw_tl)) + disp[:, 3:]
-    F[BR, HOM] = np.array(_jh(x2, y2, *uvw_br)) + disp[:, 3:]
     F[HOM, HOM] = np.eye(9)
     for i in range(n_deriv):
         F[TL, deriv_slice(i)] = F[BR, deriv_slice(i)] = wdisp[i] * Jc
@@ -161,6 +168,66 @@ def transition(x: np.ndarray, dt: float, n_deriv: int) -> tuple[np.ndarray, np.n
         for i in range(j, n_deriv):
             F[sj, deriv_slice(i)] = T[j, i] * Jc
     return fx, F
+
+
+def _corners_through_h(fx, F, h, x1, y1, x2, y2, disp) -> None:
+    """Paper: each corner through g, plus the centre displacement (rows TL, BR of f and F)."""
+    uvw_tl, uvw_br = _uvw(h, x1, y1), _uvw(h, x2, y2)
+    d0, d1 = disp[:, 0].tolist()
+    fx[0:4] = (uvw_tl[0] + d0, uvw_tl[1] + d1, uvw_br[0] + d0, uvw_br[1] + d1)
+    half = 0.5 * disp[:, 1:3]
+    F[TL, TL] = np.array(_jp(h, *uvw_tl)) + half
+    F[TL, BR] = half
+    F[BR, TL] = half
+    F[BR, BR] = np.array(_jp(h, *uvw_br)) + half
+    F[TL, HOM] = np.array(_jh(x1, y1, *uvw_tl)) + disp[:, 3:]
+    F[BR, HOM] = np.array(_jh(x2, y2, *uvw_br)) + disp[:, 3:]
+
+
+def _centre_through_h(fx, F, h, x1, y1, x2, y2, disp, uvw_c, Jc) -> None:
+    """Rotation-safe: centre c' = g(c) + disp, half-size e' = s(c, H) e with the local scale
+    s of :func:`local_scale`; corners c' -/+ e' (rows TL, BR of f and F)."""
+    cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
+    e = np.array([0.5 * (x2 - x1), 0.5 * (y2 - y1)])
+    s, ds_dc, ds_dh = _local_scale(h, cx, cy, uvw_c[2])
+    c_new = np.array(uvw_c[:2]) + disp[:, 0]
+    e_new = s * e
+    fx[0:2] = c_new - e_new
+    fx[2:4] = c_new + e_new
+    dc_dc = Jc + disp[:, 1:3]                       # d c' / d c
+    dc_dh = np.array(_jh(cx, cy, *uvw_c)) + disp[:, 3:]
+    de_dc = np.outer(e, ds_dc)                      # d e' / d c
+    de_dh = np.outer(e, ds_dh)
+    # c = (tl + br) / 2 and e = (br - tl) / 2: d/dtl = d/dc / 2 - d/de / 2, d/dbr = the sum
+    sI = s * np.eye(2)
+    F[TL, TL] = 0.5 * (dc_dc - de_dc) + 0.5 * sI
+    F[TL, BR] = 0.5 * (dc_dc - de_dc) - 0.5 * sI
+    F[BR, TL] = 0.5 * (dc_dc + de_dc) - 0.5 * sI
+    F[BR, BR] = 0.5 * (dc_dc + de_dc) + 0.5 * sI
+    F[TL, HOM] = dc_dh - de_dh
+    F[BR, HOM] = dc_dh + de_dh
+
+
+def local_scale(H: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Local scale of the homography at ``p``: s = sqrt|det J_g(p)|, with its derivatives
+    ds/dp (2,) and ds/dh (9,). Uses det J_g(p) = det(H) / w^3, w = h31 x + h32 y + h33 (the
+    area ratio of a homography at a point, Hartley & Zisserman; checked against finite
+    differences of :func:`jac_point` in the tests)."""
+    h = np.asarray(H, dtype=float).reshape(9).tolist()
+    x, y = float(p[0]), float(p[1])
+    return _local_scale(h, x, y, h[6] * x + h[7] * y + h[8])
+
+
+def _local_scale(h: list, x: float, y: float, w: float) -> tuple[float, np.ndarray, np.ndarray]:
+    Hm = np.array(h).reshape(3, 3)
+    det = float(np.linalg.det(Hm))
+    s = float(np.sqrt(abs(det) / abs(w) ** 3))
+    ds_dp = -1.5 * s / w * np.array([h[6], h[7]])
+    # d ln|det H| / dH = H^-T; d ln|w| / dh = (0, .., x, y, 1) / w
+    dlogdet = np.linalg.inv(Hm).T.reshape(9)
+    dlogw = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, y, 1.0]) / w
+    ds_dh = s * (0.5 * dlogdet - 1.5 * dlogw)
+    return s, ds_dp, ds_dh
 
 
 # --- generic EKF algebra ----------------------------------------------------------------------
@@ -197,6 +264,12 @@ def joseph_update_block(x: np.ndarray, P: np.ndarray, z: np.ndarray, sl: slice,
     KPt = K @ PHt.T
     P = P - KPt - KPt.T + K @ S @ K.T
     return x, 0.5 * (P + P.T)
+
+
+def mahalanobis2(innovation: np.ndarray, S: np.ndarray) -> float:
+    """Squared Mahalanobis distance nu^T S^-1 nu of an innovation with covariance S."""
+    nu = np.asarray(innovation, dtype=float)
+    return float(nu @ np.linalg.solve(S, nu))
 
 
 def selector(n: int, sl: slice) -> np.ndarray:

@@ -1,6 +1,13 @@
 """MATA block C: the homography EKF (paper section 2.3), with measurement gating, partial
 asynchronous updates and optional compensation of delayed measurements.
 
+Two presets (docs/mata.md): ``paper`` is block C as the paper describes it (EWMA confidence
+gate with absolute thresholds, corners through H, fixed R, delayed boxes applied on arrival);
+``mata``, the default, is the filter that does not make its tracker worse (delays compensated,
+rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
+confidence statistics plus innovation gating, R growing as confidence falls). A parameter left
+unset takes its preset's value; any parameter set in YAML overrides the preset.
+
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
 interval ending at this tick updates the H state *before* the corners are propagated (the
 literal reading, H held from the previous tick, is ``h_update: after_predict``); ``dt`` is in
@@ -9,6 +16,7 @@ seconds so velocities are px/s; Q entries are variance rates per second (Q = q d
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Literal, Mapping, Sequence
 
@@ -29,6 +37,24 @@ _P0_H = [1e-3, 1e-3, 1e2, 1e-3, 1e-3, 1e2, 1e-8, 1e-8, 1e-8]
 _R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
 
 
+# --- presets (docs/mata.md gives the measured evidence for each "mata" value) -------------------
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
+                  box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
+                  q_box_rel=0.0, q_v=1e3),
+    "mata": dict(gate="relative", tau_ewma=0.5, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
+                 box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
+                 q_box_rel=0.2, q_v=1e2),
+}
+
+
+def _preset_param(key: str, doc: str) -> Any:
+    """A parameter whose default depends on ``preset`` (shown by ``mata-eval list -v``)."""
+    values = "; ".join(f"{name}: {vals[key]!r}" for name, vals in PRESETS.items())
+    return param(None, f"{doc} [unset = preset value, {values}]")
+
+
 # --- block A gating (eq. ewma_score) ---------------------------------------------------------
 
 def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewma: float,
@@ -42,13 +68,37 @@ def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewm
     return s, bool(s >= tau_ewma and s - confidence <= tau_diff)
 
 
+def relative_confidence(history: tuple[float, ...], confidence: float) -> float:
+    """The confidence relative to the tracker's own typical value on this sequence: P_k divided
+    by the median of the confidences it gave on accepted boxes since init, capped at 1 (1 for
+    the first output). Makes the paper's gate thresholds tracker-independent: VitTrack's sigmoid
+    peak sits near 0.2 on target on UAVDT, KCF's PSR score near 0.6."""
+    if not np.isfinite(confidence) or confidence <= 0:
+        return 0.0
+    if not history:
+        return 1.0
+    return float(min(1.0, confidence / float(np.median(history))))
+
+
+@dataclass(frozen=True)
+class GateState:
+    """Block A's gate memory: the EWMA S_k and the confidences of the accepted boxes."""
+
+    ewma: float | None = None
+    accepted: tuple[float, ...] = ()
+
+
 @dataclass(frozen=True)
 class FilterState:
-    """Everything a tick changes: state, covariance and the confidence EWMA."""
+    """Everything a tick changes: state, covariance and the gate's memory."""
 
     x: np.ndarray
     P: np.ndarray
-    ewma: float | None
+    gate: GateState
+
+    @property
+    def ewma(self) -> float | None:
+        return self.gate.ewma
 
 
 @dataclass
@@ -87,30 +137,54 @@ class HomographyEKF:
 
     @dataclass(frozen=True)
     class Params:
+        preset: Literal["mata", "paper"] = param(
+            "mata", "values of the parameters left unset: 'mata' (improved, docs/mata.md) or "
+            "'paper' (block C as published; reproduces docs/results.md)")
         model: Literal["cv", "ca", "cj"] = param(
             "cv", "dynamic model of the box centre: constant velocity (paper), acceleration or jerk")
         camera: bool = param(
             True, "use block B's homography; false = no camera compensation (H forced to identity)")
         gating: bool = param(
-            True, "reject measurements by the thresholds below; false = use every measurement")
+            True, "reject measurements by the tests below; false = use every measurement")
+        gate: Literal["absolute", "relative"] | None = _preset_param(
+            "gate", "confidence the EWMA gate sees: the tracker's own (paper eq. ewma_score) or "
+            "relative to its median on accepted boxes since init")
         alpha_ewma: float = param(
             0.3, "EWMA smoothing factor of the tracker confidence (paper eq. ewma_score)")
-        tau_ewma: float = param(0.25, "reject the tracker's box while the confidence EWMA is below this")
-        tau_diff: float = param(
-            0.25, "reject the tracker's box when its confidence is this far below the EWMA")
-        tau_sigma: float = param(
-            2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
-        delay: Literal["ignore", "compensate"] = param(
-            "ignore", "delayed measurements: apply on arrival (paper) or at their capture time")
+        tau_ewma: float | None = _preset_param(
+            "tau_ewma", "reject the tracker's box while the confidence EWMA is below this")
+        tau_diff: float | None = _preset_param(
+            "tau_diff", "reject the tracker's box when its confidence is this far below the EWMA")
+        chi2_gate: float | None = _preset_param(
+            "chi2_gate", "reject a box whose squared Mahalanobis innovation (4 corners) exceeds "
+            "this (18.47 = chi2 99.9 %); 0 = off")
+        tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
+        delay: Literal["ignore", "compensate"] | None = _preset_param(
+            "delay", "delayed measurements: apply on arrival (paper) or at their capture time")
         history_s: float = param(2.0, "seconds of state history kept for delay: compensate")
         h_update: Literal["before_predict", "after_predict"] = param(
             "before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
-        r_box: float = param(4.0, "variance (px^2) of each measured corner coordinate (fixed, paper)")
+        box_motion: Literal["corners", "centre"] | None = _preset_param(
+            "box_motion", "propagate both corners through H (paper) or the centre through H and "
+            "the size by the local scale sqrt|det J| (rotation-safe)")
+        r_box: float | None = _preset_param(
+            "r_box", "variance (px^2) of each measured corner coordinate, constant part")
+        r_box_rel: float | None = _preset_param(
+            "r_box_rel", "std of each measured corner coordinate relative to the box side "
+            "sqrt(w h); adds (r_box_rel sqrt(w h))^2 to r_box")
+        r_confidence: bool | None = _preset_param(
+            "r_confidence", "divide R by the squared relative confidence (R grows as the "
+            "confidence falls below its median)")
         r_h_floor: list[float] = param(
             _R_H_FLOOR, "per-entry floor of the homography measurement variance (9 values, row-major)")
-        q_box: float = param(30.0, "process noise of each corner coordinate (px^2 per second)")
+        q_box: float | None = _preset_param(
+            "q_box", "process noise of each corner coordinate (px^2 per second), constant part")
+        q_box_rel: float | None = _preset_param(
+            "q_box_rel", "process noise of each corner relative to the box side: adds "
+            "(q_box_rel sqrt(w h))^2 per second to q_box")
         q_h: list[float] = param(_Q_H, "process noise of the homography entries (9 values, per second)")
-        q_v: float = param(1e3, "process noise of the centre velocity ((px/s)^2 per second)")
+        q_v: float | None = _preset_param(
+            "q_v", "process noise of the centre velocity ((px/s)^2 per second)")
         q_a: float = param(1e4, "process noise of the centre acceleration (models ca, cj)")
         q_j: float = param(1e5, "process noise of the centre jerk (model cj)")
         p0_box: float = param(1.0, "initial variance of each corner coordinate (px^2)")
@@ -130,23 +204,30 @@ class HomographyEKF:
                 raise ValueError(f"homography_ekf: `r_h_floor` must be positive, got {self.r_h_floor!r}")
             if not 0.0 < self.alpha_ewma <= 1.0:
                 raise ValueError(f"homography_ekf: `alpha_ewma` must be in (0, 1], got {self.alpha_ewma}")
-            for key in ("r_box", "history_s"):
-                if not getattr(self, key) > 0:
-                    raise ValueError(f"homography_ekf: `{key}` must be positive, got {getattr(self, key)}")
-            for key in ("q_box", "q_v", "q_a", "q_j", "p0_box", "p0_v", "p0_a", "p0_j", "tau_sigma"):
-                if not getattr(self, key) >= 0:
-                    raise ValueError(f"homography_ekf: `{key}` must be >= 0, got {getattr(self, key)}")
+            if not self.history_s > 0:
+                raise ValueError(f"homography_ekf: `history_s` must be positive, got {self.history_s}")
+            for key in ("q_box", "q_box_rel", "q_v", "q_a", "q_j", "p0_box", "p0_v", "p0_a", "p0_j",
+                        "tau_sigma", "r_box_rel", "chi2_gate"):
+                v = getattr(self, key)
+                if v is not None and not v >= 0:
+                    raise ValueError(f"homography_ekf: `{key}` must be >= 0, got {v}")
+            if self.r_box is not None and not self.r_box > 0:
+                raise ValueError(f"homography_ekf: `r_box` must be positive, got {self.r_box}")
+
+        def resolved(self) -> "HomographyEKF.Params":
+            """These parameters with every unset one taken from the preset."""
+            unset = {k: v for k, v in PRESETS[self.preset].items() if getattr(self, k) is None}
+            return dataclasses.replace(self, **unset)
 
     def __init__(self, params: Params | None = None):
-        self.params = p = params if params is not None else self.Params()
+        self.params = p = (params if params is not None else self.Params()).resolved()
         self.n_deriv = N_DERIV[p.model]
         h_q = np.asarray(p.q_h, float) if p.camera else np.zeros(9)
         h_p0 = np.asarray(p.p0_h, float) if p.camera else np.zeros(9)
         dq = [p.q_v, p.q_a, p.q_j][: self.n_deriv]
         dp = [p.p0_v, p.p0_a, p.p0_j][: self.n_deriv]
-        self._q = np.concatenate([np.full(4, p.q_box), h_q, np.repeat(dq, 2)])
+        self._q = np.concatenate([np.full(4, p.q_box), h_q, np.repeat(dq, 2)])  # rates per second
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
-        self._R_box = np.eye(4) * p.r_box
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
 
@@ -158,7 +239,7 @@ class HomographyEKF:
         x = np.zeros(em.state_dim(self.n_deriv))
         x[em.CORNERS] = box.corners()
         x[em.HOM] = np.eye(3).reshape(9)
-        start = FilterState(x, self._p0.copy(), None)
+        start = FilterState(x, self._p0.copy(), GateState())
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         return self._estimate(start)
 
@@ -219,21 +300,29 @@ class HomographyEKF:
         """One tick: H update(s), prediction over dt, corner update(s); measurements in capture
         order. Predicting is skipped when dt = 0 (the initial frame, or measurements added to an
         already-run tick)."""
-        x, P, ewma = tick.before.x, tick.before.P, tick.before.ewma
+        x, P, gate = tick.before.x, tick.before.P, tick.before.gate
         motions = sorted(tick.motions, key=lambda s: s.t_capture)
         before = self.params.h_update == "before_predict"
         if before:
             x, P = self._update_motion(x, P, motions)
         if tick.dt > 0:
-            fx, F = em.transition(x, tick.dt, self.n_deriv)
-            x, P = fx, em.predict_cov(P, F, np.diag(self._q * tick.dt))
+            fx, F = em.transition(x, tick.dt, self.n_deriv, self.params.box_motion)
+            x, P = fx, em.predict_cov(P, F, np.diag(self._process_noise(x) * tick.dt))
         if not before:
             x, P = self._update_motion(x, P, motions)
         for det in sorted(tick.detections, key=lambda s: s.t_capture):
-            x, P, ewma = self._update_detection(x, P, ewma, det.value)
+            x, P, gate = self._update_detection(x, P, gate, det.value)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             return tick.before  # numerically degenerate input (e.g. an absurd H): hold, never NaN
-        return FilterState(x, P, ewma)
+        return FilterState(x, P, gate)
+
+    def _process_noise(self, x: np.ndarray) -> np.ndarray:
+        """Q rates per second: the corners' grow with the box side sqrt(w h) (q_box_rel)."""
+        q = self._q
+        if self.params.q_box_rel:
+            q = q.copy()
+            q[em.CORNERS] += (self.params.q_box_rel * em.box_side(x)) ** 2
+        return q
 
     # --- measurements -----------------------------------------------------------------------------
 
@@ -269,16 +358,39 @@ class HomographyEKF:
                 return x, P
         return em.joseph_update_block(x, P, H.reshape(9), em.HOM, em.floored(C, self._h_floor))
 
-    def _update_detection(self, x: np.ndarray, P: np.ndarray, ewma: float | None,
-                          out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, float | None]:
-        """Block A: EWMA gate (eq. ewma_score), then a partial update of the four corners with
-        R = r_box I. A non-finite or empty box is never used."""
+    def _update_detection(self, x: np.ndarray, P: np.ndarray, gate: GateState,
+                          out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, GateState]:
+        """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
+        confidence relative to its median), innovation gate (chi2_gate), then a partial update
+        of the four corners with R of :meth:`_box_noise`. A non-finite or empty box is never
+        used."""
         p = self.params
-        ewma, accept = confidence_gate(ewma, float(out.confidence), p.alpha_ewma, p.tau_ewma, p.tau_diff)
+        conf = float(out.confidence)
+        if p.gate == "relative":
+            conf = relative_confidence(gate.accepted, conf)
+        ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff)
+        if p.gate == "relative" and conf <= 0:
+            accept = False  # a tracker that found nothing says so with confidence 0
+        gate = dataclasses.replace(gate, ewma=ewma)
         if not out.box.is_valid or (p.gating and not accept):
-            return x, P, ewma
-        x, P = em.joseph_update_block(x, P, np.asarray(out.box.corners(), float), em.CORNERS, self._R_box)
-        return x, P, ewma
+            return x, P, gate
+        z = np.asarray(out.box.corners(), float)
+        R = self._box_noise(x, conf)
+        if p.gating and p.chi2_gate and em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R) > p.chi2_gate:
+            return x, P, gate
+        x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
+        if p.gate == "relative":
+            gate = dataclasses.replace(gate, accepted=gate.accepted + (float(out.confidence),))
+        return x, P, gate
+
+    def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
+        """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
+        confidence with ``r_confidence`` (floored at 0.1: R at most 100 times larger)."""
+        p = self.params
+        r = p.r_box + (p.r_box_rel * em.box_side(x)) ** 2
+        if p.r_confidence:
+            r = r / max(relative_conf, 0.1) ** 2
+        return np.eye(4) * r
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
