@@ -95,12 +95,14 @@ def _close(a_x, a_P, b_x, b_P, rtol=1e-9):
     assert np.all(np.abs(a_P - b_P) <= rtol * scale), (np.abs(a_P - b_P) / scale).max()
 
 
-@pytest.mark.parametrize("model", ["cv", "ca", "cj"])
-def test_every_step_matches_filterpy(model):
+@pytest.mark.parametrize("model,preset", [("cv", "paper"), ("ca", "paper"), ("cj", "paper"),
+                                          ("cv", "mata"), ("ca", "mata")])
+def test_every_step_matches_filterpy(model, preset):
     """Seeded run: each H update, predict and corner update of the plugin equals filterpy's
-    ExtendedKalmanFilter given the same F, Q, H, R (relative 1e-9)."""
+    ExtendedKalmanFilter given the same F, Q, H, R (relative 1e-9); under the mata preset Q and
+    R follow the box size (the plugin's own noise functions give them)."""
     rng = np.random.default_rng(42)
-    est = HomographyEKF(P(model=model, gating=False))
+    est = HomographyEKF(P(model=model, gating=False, preset=preset))
     box0 = Box(200.0, 150.0, 40.0, 30.0)
     est.initialize(box0, 0.0)
     n = est.state.x.size
@@ -108,7 +110,7 @@ def test_every_step_matches_filterpy(model):
     ref.x, ref.P = est.state.x.copy(), est.state.P.copy()
     mine_x, mine_P = ref.x.copy(), ref.P.copy()
     Hb, Hh = em.selector(n, em.CORNERS), em.selector(n, em.HOM)
-    q = np.diag(est._q * DT)
+    box_motion = est.params.box_motion
     truth = np.array(box0.corners())
     for k in range(1, 60):
         H = random_h(rng)
@@ -129,17 +131,19 @@ def test_every_step_matches_filterpy(model):
             gx, gP = em.joseph_update(ref_x0, ref_P0, H.reshape(9), Hh, R)
             _close(mine_x, mine_P, ref.x, ref.P)
             _close(gx, gP, ref.x, ref.P)
-        fx, F = em.transition(ref.x, DT, est.n_deriv)
+        q = np.diag(est._process_noise(ref.x) * DT)
+        fx, F = em.transition(ref.x, DT, est.n_deriv, box_motion)
         ref.F, ref.Q, ref.fx = F, q, fx
         ref.predict()
         mine_x, mine_P = fx, em.predict_cov(mine_P, F, q)
         _close(mine_x, mine_P, ref.x, ref.P)
         if dets:
             z = np.array(dets[0].value.box.corners())
+            R = est._box_noise(ref.x, 1.0)   # constant confidence: relative confidence 1
             ref_x0, ref_P0 = ref.x.copy(), ref.P.copy()
-            ref.update(z, lambda x: Hb, lambda x: Hb @ x, R=est._R_box)
-            mine_x, mine_P = em.joseph_update_block(mine_x, mine_P, z, em.CORNERS, est._R_box)
-            gx, gP = em.joseph_update(ref_x0, ref_P0, z, Hb, est._R_box)
+            ref.update(z, lambda x: Hb, lambda x: Hb @ x, R=R)
+            mine_x, mine_P = em.joseph_update_block(mine_x, mine_P, z, em.CORNERS, R)
+            gx, gP = em.joseph_update(ref_x0, ref_P0, z, Hb, R)
             _close(mine_x, mine_P, ref.x, ref.P)
             _close(gx, gP, ref.x, ref.P)
         _close(est.state.x, est.state.P, ref.x, ref.P)
@@ -178,14 +182,14 @@ def test_gating_rejects_a_sudden_confidence_drop_and_a_low_average():
     good = Box(101, 100, 40, 40)
     far = Box(300, 300, 40, 40)
     seq = [(0.9, good)] * 5 + [(0.2, far)]
-    gated = _run_dets(P(), seq)
-    without = _run_dets(P(), [(0.9, good)] * 5 + [(0.9, None)])
+    gated = _run_dets(P(preset="paper"), seq)
+    without = _run_dets(P(preset="paper"), [(0.9, good)] * 5 + [(0.9, None)])
     # the dropped measurement is a no-op: same estimate as if it never came
     assert gated[-1].box == without[-1].box
-    ungated = _run_dets(P(gating=False), seq)
+    ungated = _run_dets(P(preset="paper", gating=False), seq)
     assert ungated[-1].box.cx > gated[-1].box.cx + 50
     # a low confidence throughout: nothing is used, the box stays where it was initialised
-    low = _run_dets(P(), [(0.1, far)] * 6)
+    low = _run_dets(P(preset="paper"), [(0.1, far)] * 6)
     assert low[-1].box.center == pytest.approx((120.0, 120.0))
 
 
@@ -343,7 +347,7 @@ def test_ablation_experiment_expands_to_the_seven_configurations():
     for name in ("1-baseline", "3-score"):
         assert runs[name].egomotion is None and runs[name].estimator is None
     est = {n: r.estimator.params for n, r in runs.items() if r.estimator is not None}
-    assert est["2-mata"] == HomographyEKF.Params()
+    assert est["2-mata"] == HomographyEKF.Params(preset="paper", delay="ignore")
     assert runs["4-no-camera"].egomotion is None and est["4-no-camera"].camera is False
     assert (est["5-ca"].model, est["6-cj"].model, est["7-no-threshold"].gating) == ("ca", "cj", False)
     assert all(r.protocol.name == "eop" and r.tracker.name == "kcf" for r in runs.values())

@@ -36,8 +36,8 @@ def deriv_slice(i: int) -> slice:
 
 def box_side(x: np.ndarray) -> float:
     """sqrt(w h) of the box in the state (0 for a degenerate box): the scale of its noise."""
-    w, h = x[2] - x[0], x[3] - x[1]
-    return float(np.sqrt(max(w * h, 0.0)))
+    w, h = float(x[2] - x[0]), float(x[3] - x[1])
+    return float(np.sqrt(max(w, 0.0)) * np.sqrt(max(h, 0.0)))
 
 
 # --- the homography projection g and its derivatives (eq. homography) --------------------------
@@ -270,6 +270,17 @@ def mahalanobis2(innovation: np.ndarray, S: np.ndarray) -> float:
     """Squared Mahalanobis distance nu^T S^-1 nu of an innovation with covariance S."""
     nu = np.asarray(innovation, dtype=float)
     return float(nu @ np.linalg.solve(S, nu))
+
+
+def robust_noise(innovation: np.ndarray, P_zz: np.ndarray, R: np.ndarray, chi2: float) -> np.ndarray:
+    """R for a measurement with predicted covariance ``P_zz`` (Huber-type bound): unchanged
+    while the squared Mahalanobis distance d2 = nu^T (P_zz + R)^-1 nu is at most ``chi2``,
+    otherwise multiplied by d2 / chi2. An improbable measurement then moves the state by a
+    bounded step instead of being dropped (dropping it locks a confidently wrong filter out)."""
+    d2 = mahalanobis2(innovation, P_zz + R)
+    if not d2 > chi2:
+        return R
+    return R * (d2 / chi2)
 
 
 def selector(n: int, sl: slice) -> np.ndarray:

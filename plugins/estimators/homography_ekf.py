@@ -156,8 +156,8 @@ class HomographyEKF:
         tau_diff: float | None = _preset_param(
             "tau_diff", "reject the tracker's box when its confidence is this far below the EWMA")
         chi2_gate: float | None = _preset_param(
-            "chi2_gate", "reject a box whose squared Mahalanobis innovation (4 corners) exceeds "
-            "this (18.47 = chi2 99.9 %); 0 = off")
+            "chi2_gate", "a box whose squared Mahalanobis innovation (4 corners) exceeds this "
+            "(18.47 = chi2 99.9 %) gets R inflated until it equals it; 0 = off")
         tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
         delay: Literal["ignore", "compensate"] | None = _preset_param(
             "delay", "delayed measurements: apply on arrival (paper) or at their capture time")
@@ -255,7 +255,7 @@ class HomographyEKF:
         first = len(self._ticks) - 1
         for kind, items in (("motions", motions), ("detections", detections)):
             for item in items:
-                i = self._tick_index(item.t_capture)
+                i = self._tick_index(item.t_capture, kind == "motions")
                 getattr(self._ticks[i], kind).append(item)
                 first = min(first, i)
         self._replay(first)
@@ -269,16 +269,19 @@ class HomographyEKF:
 
     # --- ticks --------------------------------------------------------------------------------
 
-    def _tick_index(self, t_capture: float) -> int:
+    def _tick_index(self, t_capture: float, interval: bool) -> int:
         """The tick a measurement belongs to: the newest under ``delay: ignore`` (applied on
-        arrival), the tick nearest its capture time under ``compensate`` (the newest when it is
-        older than the kept history)."""
+        arrival); under ``compensate`` the tick nearest its capture time, or for a motion
+        (``interval``: it ends at its capture time) the first tick at or after it; the newest
+        when it is older than the kept history."""
         last = len(self._ticks) - 1
         if self.params.delay == "ignore" or t_capture >= self._ticks[-1].t - EPS_T:
             return last
         if t_capture < self._ticks[0].t - EPS_T:
             return last
         times = np.array([k.t for k in self._ticks])
+        if interval:
+            return int(np.argmax(times >= t_capture - EPS_T))
         return int(np.argmin(np.abs(times - t_capture)))
 
     def _replay(self, first: int) -> None:
@@ -361,8 +364,9 @@ class HomographyEKF:
     def _update_detection(self, x: np.ndarray, P: np.ndarray, gate: GateState,
                           out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, GateState]:
         """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
-        confidence relative to its median), innovation gate (chi2_gate), then a partial update
-        of the four corners with R of :meth:`_box_noise`. A non-finite or empty box is never
+        confidence relative to its median), then a partial update of the four corners with R of
+        :meth:`_box_noise`, inflated for an improbable innovation (chi2_gate; a hard reject
+        there locks a confidently wrong filter out of all later boxes). A non-finite or empty box is never
         used."""
         p = self.params
         conf = float(out.confidence)
@@ -376,8 +380,8 @@ class HomographyEKF:
             return x, P, gate
         z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
-        if p.gating and p.chi2_gate and em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R) > p.chi2_gate:
-            return x, P, gate
+        if p.gating and p.chi2_gate:
+            R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
         if p.gate == "relative":
             gate = dataclasses.replace(gate, accepted=gate.accepted + (float(out.confidence),))
