@@ -303,6 +303,10 @@ class HomographyEKF:
         """One tick: H update(s), prediction over dt, corner update(s); measurements in capture
         order. Predicting is skipped when dt = 0 (the initial frame, or measurements added to an
         already-run tick)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # a degenerate input is held below
+            return self._tick_state(tick)
+
+    def _tick_state(self, tick: _Tick) -> FilterState:
         x, P, gate = tick.before.x, tick.before.P, tick.before.gate
         motions = sorted(tick.motions, key=lambda s: s.t_capture)
         before = self.params.h_update == "before_predict"
@@ -324,7 +328,7 @@ class HomographyEKF:
         q = self._q
         if self.params.q_box_rel:
             q = q.copy()
-            q[em.CORNERS] += (self.params.q_box_rel * em.box_side(x)) ** 2
+            q[em.CORNERS] += np.square(self.params.q_box_rel * em.box_side(x))
         return q
 
     # --- measurements -----------------------------------------------------------------------------
@@ -391,7 +395,7 @@ class HomographyEKF:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
         confidence with ``r_confidence`` (floored at 0.1: R at most 100 times larger)."""
         p = self.params
-        r = p.r_box + (p.r_box_rel * em.box_side(x)) ** 2
+        r = p.r_box + np.square(p.r_box_rel * em.box_side(x))
         if p.r_confidence:
             r = r / max(relative_conf, 0.1) ** 2
         return np.eye(4) * r
