@@ -91,6 +91,24 @@ def map_box_back(pred_box: Sequence[float], prev_center: tuple[float, float], se
     return Box(cx_img - 0.5 * w, cy_img - 0.5 * h, w, h)
 
 
+def usable_prior(prior: Sequence[float] | None, w: float, h: float, height: int, width: int,
+                 margin: float = 0.5) -> tuple[float, float] | None:
+    """The MATA search centre a tracker may use (any prior, from any estimator, must be
+    survivable): None (keep the tracker's own centre) when missing or not finite, otherwise the
+    centre clamped to the image grown by ``margin`` times the box size on each side (the default
+    keeps the box within half a box of the image)."""
+    if prior is None:
+        return None
+    try:
+        cx, cy = (float(v) for v in prior)
+    except (TypeError, ValueError):
+        return None
+    if not (math.isfinite(cx) and math.isfinite(cy)):
+        return None
+    mx, my = margin * max(float(w), 0.0), margin * max(float(h), 0.0)
+    return min(max(cx, -mx), width + mx), min(max(cy, -my), height + my)
+
+
 def clip_box(box: Box | Sequence[float], height: int, width: int, margin: float = 0) -> Box:
     """Clamp a box into a ``width`` x ``height`` image keeping at least ``margin`` pixels of
     width and height (upstream ``clip_box``; the trackers call it with margin 10)."""

@@ -26,6 +26,8 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
+from .crop import usable_prior
+
 _N_ORIENT = 9
 _NORM_EPS = 1e-2
 _COLOUR_GAIN = 1.0
@@ -220,7 +222,8 @@ class KCFTracker:
         if not self._ready:
             raise RuntimeError("kcf: track() called before initialize()")
         p = self.params
-        cx, cy = (self._cx, self._cy) if prior is None else (float(prior[0]), float(prior[1]))
+        prior = usable_prior(prior, self._w, self._h, *image.shape[:2])
+        cx, cy = (self._cx, self._cy) if prior is None else prior
         best = None
         for scale in (1.0, 1.0 / p.scale_step, p.scale_step):
             w, h = self._w * scale, self._h * scale

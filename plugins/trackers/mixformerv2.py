@@ -34,7 +34,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target
+from .crop import clip_box, map_box_back, sample_target, usable_prior
 from .window_score import pmf_window_score_min
 
 SOURCE = "https://github.com/MCG-NJU/MixFormerV2 (README, model zoo: Google Drive / NJU Box links)"
@@ -234,7 +234,8 @@ class MixFormerV2:
         _check_image(image)
         p, net = self.params, self._net
         size = net.cfg.search_size
-        center = self._state.center if prior is None else (float(prior[0]), float(prior[1]))
+        prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
+        center = self._state.center if prior is None else prior
         x, resize_factor = self._crop(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             if p.template_cache:

@@ -34,6 +34,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
+from .crop import usable_prior
 from .model_files import resolve_model
 from .window_score import map_window_score
 
@@ -268,6 +269,9 @@ class NanoTrack:
         # single precision throughout, like tracker_nano.cpp: int() truncations of the crop
         # corner then fall on the same side as OpenCV's
         f32 = np.float32
+        # the prior is clamped into the image, the domain of cv2's own state: its scale penalty
+        # takes the square root of a size computed from the position (see size_measure)
+        prior = usable_prior(prior, self._size[0], self._size[1], *image.shape[:2], margin=0.0)
         if prior is not None:
             self._pos = np.array([prior[0], prior[1]], dtype=f32)
         size_sum = int(self._size[0] + self._size[1])          # cv2 truncates the sum

@@ -23,7 +23,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target
+from .crop import clip_box, map_box_back, sample_target, usable_prior
 from .mixformerv2 import _check_image, checkpoint_path
 
 SOURCE = "https://github.com/botaoye/OSTrack (README, model zoo: vitb_256_mae_ce_32x4_ep300, Google Drive)"
@@ -141,7 +141,8 @@ class OSTrack:
         _check_image(image)
         p, net = self.params, self._net
         size = net.cfg.search_size
-        center = self._state.center if prior is None else (float(prior[0]), float(prior[1]))
+        prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
+        center = self._state.center if prior is None else prior
         patch, resize_factor = sample_target(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             score, size_map, offset = net(self._template, image_to_tensor(patch, self._tensor_device()), p.ce_keep_ratio)

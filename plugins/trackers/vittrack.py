@@ -11,9 +11,12 @@ multiplied by a centred 16x16 Hann window and its argmax cell gives the box
 OpenCV's integer rectangle (floor), which is what parity with ``cv2.TrackerVit`` needs on
 10-pixel targets.
 
-Confidence: the paper's window score extended to 2-D (section 2.1, last paragraph) on the raw
-score map (normalised as a PMF, square window around its peak); the raw peak and OpenCV's
-Hann-weighted tracking score are in ``extra``.
+Confidence (``confidence``): by default the network's own score, the sigmoid peak of the score
+map, as the paper does for a tracker whose output map is too coarse for its window score
+(section 2.1: L294 keeps OSTrack's score, L309-311); ``window`` is the paper's window score
+extended to 2-D (last paragraph of 2.1) on the 16x16 map, measured worse (docs/mata.md). When
+the Hann-weighted peak is below ``score_threshold`` the tracker found nothing: it reports
+confidence 0 and ``extra['found'] = 0`` with its previous box, never the search centre as a box.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import crop_square
+from .crop import crop_square, usable_prior
 from .model_files import resolve_model
 from .window_score import map_window_score
 
@@ -74,7 +77,7 @@ def to_blob(patch_bgr: np.ndarray, size: int, normalisation: str = "opencv") -> 
 
 
 class VitTrack:
-    """VitTrack (OpenCV zoo) on ONNX Runtime/TensorRT; prior-aware; 2-D window-score confidence."""
+    """VitTrack (OpenCV zoo) on ONNX Runtime/TensorRT; prior-aware; sigmoid-peak confidence."""
 
     name = "vittrack"
     label = "VitTrack"  # display name in reports
@@ -87,6 +90,8 @@ class VitTrack:
         threads: int = param(1, "ONNX Runtime intra-op threads (0 = library default)")
         template_factor: float = param(2.0, "template crop side relative to sqrt(w h)")
         search_factor: float = param(4.0, "search crop side relative to sqrt(w h)")
+        confidence: Literal["peak", "window"] = param(
+            "peak", "confidence: the score map's sigmoid peak (the tracker's own) or the 2-D window score")
         window_alpha: float = param(0.125, "2-D window score: side = 2 round(alpha 16 / 2) + 1 cells (0.125 -> 3x3)")
         score_threshold: float = param(0.2, "hold the last box when the Hann-weighted peak is below (cv2 default)")
         opencv_rounding: bool = param(True, "keep integer (floored) boxes exactly like cv2.TrackerVit")
@@ -140,6 +145,7 @@ class VitTrack:
         p = self.params
         x, y, w, h = self._box
         region = self._box.copy()
+        prior = usable_prior(prior, w, h, *image.shape[:2])
         if prior is not None:
             region[0], region[1] = prior[0] - w / 2.0, prior[1] - h / 2.0
             if p.opencv_rounding:
@@ -152,6 +158,7 @@ class VitTrack:
         weighted = score * self._hann
         iy, ix = np.unravel_index(int(np.argmax(weighted)), weighted.shape)
         tracking_score = float(weighted[iy, ix])
+        found = False
         if tracking_score >= p.score_threshold:
             cx = (ix + offset[0, iy, ix]) / _FEAT
             cy = (iy + offset[1, iy, ix]) / _FEAT
@@ -160,19 +167,24 @@ class VitTrack:
                            bw * crop_sz, bh * crop_sz], dtype=np.float64)
             if p.opencv_rounding:
                 nb = np.floor(nb)
-            if nb[2] >= 1 and nb[3] >= 1 and np.all(np.isfinite(nb)):
-                self._box = nb
-            elif prior is not None:
-                self._box = region
+            found = bool(nb[2] >= 1 and nb[3] >= 1 and np.all(np.isfinite(nb)))
+        reported = nb if found else self._box          # nothing found: the previous box, confidence 0
+        if found:
+            self._box = nb
         elif prior is not None:
-            self._box = region   # nothing found: keep the estimator's proposal as our state
-        confidence = map_window_score(score, p.window_alpha) if float(score.max()) > 0 else 0.0
+            self._box = region   # keep searching where the estimator expects the target
+        peak = float(score.max())
+        if not found:
+            confidence = 0.0
+        elif p.confidence == "peak":
+            confidence = peak
+        else:
+            confidence = map_window_score(score, p.window_alpha) if peak > 0 else 0.0
         return TrackerOutput(
-            box=Box.from_array(self._box),
+            box=Box.from_array(reported),
             confidence=float(np.clip(confidence, 0.0, 1.0)),
             score_map=score,
-            extra={"peak": float(score.max()), "tracking_score": tracking_score,
-                   "found": float(tracking_score >= p.score_threshold)},
+            extra={"peak": peak, "tracking_score": tracking_score, "found": float(found)},
         )
 
 
