@@ -1,0 +1,178 @@
+"""What MATA adds to its tracker (issue 14): change in NT2F and SR (points) of default MATA
+(``homography_ekf`` preset ``mata``) and of the paper's block C (``preset: paper``) against the
+same tracker alone, per dataset, clean and occluded (``occlusion: {}``), LTP and EOP.
+
+    python benchmarks/mata_gain.py                  # the full table (about 30 min on 2 cores)
+    python benchmarks/mata_gain.py --datasets aerial30 --trackers kcf --quick
+
+Datasets (``$MATA_SHARED_DATA``, default ../shared/data):
+- ``aerial30``: 4 real DTB70/UAVDT sequences at 30 fps; EOP runs the tracker at 10 Hz;
+- ``uav123_10fps``: 2 real UAV123 sequences at 10 fps; EOP runs the tracker at 2 Hz;
+- ``synthetic``: 6 sequences of the built-in suite (syn001..syn006, one of each kind, 300
+  frames at 30 fps); EOP at 10 Hz.
+The EOP rates are exact divisors of the frame rate; the ``Hz`` column is the tracker rate the
+scheduler actually ran (so a wrong rate shows).
+
+Every run goes through the ``mata-eval`` command line on an experiment file written to the
+output folder (one per dataset), ``nice -n 10`` and ``-j 2``. Prints the table, the targets of
+issue 14 (no cell where default MATA loses more than 1 point; mean EOP-occluded NT2F gain >= 10)
+and the wall and CPU seconds of the runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+SYNTHETIC = ["syn001_cruise", "syn002_manoeuvre", "syn003_outofview", "syn004_occlusion",
+             "syn005_crowd", "syn006_cruise"]
+TRACKERS = ["kcf", "vittrack", "nanotrack"]
+CONFIGS = {"base": {"egomotion": None, "estimator": None},
+           "mata": {},
+           "paper": {"estimator": {"preset": "paper"}}}
+
+
+def shared_data() -> Path:
+    env = os.environ.get("MATA_SHARED_DATA")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def datasets(root: Path, quick: bool) -> dict[str, tuple[dict, float]]:
+    """name -> (dataset block, EOP tracker rate in Hz)."""
+    seq = root / "sequences"
+    synth = SYNTHETIC[:2] if quick else SYNTHETIC
+    return {
+        "aerial30": ({"name": "folder", "root": str(seq / "aerial30"), "fps": 30}, 10.0),
+        "uav123_10fps": ({"name": "folder", "root": str(seq / "uav123_10fps"), "fps": 10}, 2.0),
+        "synthetic": ({"name": "synthetic", "sequences": synth}, 10.0),
+    }
+
+
+def experiment(name: str, dataset: dict, eop_hz: float, trackers: list[str], out: Path,
+               estimator: dict) -> dict:
+    """One experiment file: tracker x data (clean, occ) x protocol (ltp, eop) x config."""
+    return {
+        "name": f"mata_gain_{name}",
+        "seed": 0,
+        "output": str(out / name),
+        "dataset": dataset,
+        "occlusion": None,
+        "tracker": {"name": trackers[0]},
+        "egomotion": {"name": "grid_lk"},
+        "estimator": {"name": "homography_ekf", **estimator},
+        "feedback": True,
+        "protocol": {"name": "ltp"},
+        "metrics": {"profile": "default"},
+        "matrix": {
+            "tracker": {t: {"name": t} for t in trackers},
+            "data": {"clean": {}, "occ": {"occlusion": {}}},
+            "protocol": {"ltp": {"name": "ltp"}, "eop": {"name": "eop", "tracker_hz": eop_hz}},
+            "config": CONFIGS,
+        },
+    }
+
+
+def run_cli(exp_file: Path, jobs: int) -> None:
+    cli = Path(sys.executable).with_name("mata-eval")
+    cmd = ["nice", "-n", "10", str(cli), "run", str(exp_file), "-j", str(jobs), "-q"]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+
+
+def read_scores(run_dir: Path) -> dict:
+    s = json.loads((run_dir / "scores.json").read_text())
+    o = s["summary"]["overall"]
+    return {"sr": 100 * o["sr"], "nt2f": 100 * o["nt2f"], "hz": s["frequencies"]["tracker"]["scheduled_hz"],
+            "failed": len(s.get("failures", {}))}
+
+
+def table(results: dict, names: list[str], trackers: list[str]) -> list[str]:
+    """Markdown rows: per dataset, data, protocol; per tracker: baseline NT2F/SR and the change
+    of default MATA and of the paper preset."""
+    head = "| data | protocol | Hz | " + " | ".join(
+        f"{t} base NT2F/SR | {t} MATA dNT2F/dSR | {t} paper dNT2F/dSR" for t in trackers) + " |"
+    rows = [head, "|" + "---|" * (3 + 3 * len(trackers))]
+    for name in names:
+        for data in ("clean", "occ"):
+            for proto in ("ltp", "eop"):
+                cells, hz = [], None
+                for t in trackers:
+                    base = results[name][f"{t}-{data}-{proto}-base"]
+                    hz = base["hz"]
+                    cells.append(f"{base['nt2f']:.1f} / {base['sr']:.1f}")
+                    for cfg in ("mata", "paper"):
+                        r = results[name][f"{t}-{data}-{proto}-{cfg}"]
+                        cells.append(f"{r['nt2f'] - base['nt2f']:+.1f} / {r['sr'] - base['sr']:+.1f}")
+                rows.append(f"| {name} {data} | {proto.upper()} | {hz:.1f} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def targets(results: dict, names: list[str], trackers: list[str]) -> list[str]:
+    worst, eop_gain = [], []
+    for name in names:
+        for t in trackers:
+            for data in ("clean", "occ"):
+                for proto in ("ltp", "eop"):
+                    base = results[name][f"{t}-{data}-{proto}-base"]
+                    r = results[name][f"{t}-{data}-{proto}-mata"]
+                    for m in ("nt2f", "sr"):
+                        worst.append((r[m] - base[m], f"{name} {data} {proto} {t} {m}"))
+                    if data == "occ" and proto == "eop":
+                        eop_gain.append(r["nt2f"] - base["nt2f"])
+    w = min(worst)
+    losses = [f"{d:+.1f} {where}" for d, where in sorted(worst) if d < -1.0]
+    mean_gain = sum(eop_gain) / len(eop_gain)
+    return [f"worst cell of default MATA vs its baseline: {w[0]:+.1f} ({w[1]}); target >= -1.0: "
+            f"{'met' if w[0] >= -1.0 else 'NOT met'}",
+            *(f"  loss: {x}" for x in losses),
+            f"mean NT2F gain at EOP with occlusions over trackers and datasets: {mean_gain:+.1f}; "
+            f"target >= +10: {'met' if mean_gain >= 10 else 'NOT met'}"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--datasets", nargs="+", default=["aerial30", "uav123_10fps", "synthetic"])
+    ap.add_argument("--trackers", nargs="+", default=TRACKERS)
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temp folder)")
+    ap.add_argument("-j", "--jobs", type=int, default=2)
+    ap.add_argument("--quick", action="store_true", help="2 synthetic sequences instead of 6")
+    ap.add_argument("--estimator", default="{}", help="YAML mapping of extra homography_ekf "
+                    "parameters for the mata run (the default preset when empty)")
+    args = ap.parse_args(argv)
+    root = shared_data()
+    out = args.out or Path(tempfile.mkdtemp(prefix="mata_gain_"))
+    out.mkdir(parents=True, exist_ok=True)
+    estimator = yaml.safe_load(args.estimator) or {}
+    all_sets = datasets(root, args.quick)
+    results: dict[str, dict] = {}
+    t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    for name in args.datasets:
+        dataset, hz = all_sets[name]
+        exp = experiment(name, dataset, hz, args.trackers, out, estimator)
+        exp_file = out / f"{name}.yaml"
+        exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
+        run_cli(exp_file, args.jobs)
+        results[name] = {d.name: read_scores(d) for d in (out / name).iterdir()
+                         if (d / "scores.json").is_file()}
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    failed = sum(r["failed"] for res in results.values() for r in res.values())
+    print(f"NT2F / SR (points); d = default MATA or paper preset minus the tracker alone. "
+          f"Experiment files and runs: {out}")
+    print("\n".join(table(results, args.datasets, args.trackers)))
+    print("\n".join(targets(results, args.datasets, args.trackers)))
+    print(f"failed sequences: {failed}; wall {wall:.0f} s, CPU {cpu:.0f} s (children, {args.jobs} jobs)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,155 @@
+"""The improved block C (preset mata, issue 14) against independent facts: Monte-Carlo images
+of a box under rotation and projective homographies, finite differences, hand-computed gate
+decisions and Mahalanobis distances."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mata_eval.types import Box, Motion, Stamped, TrackerOutput
+from mata_eval_plugins.estimators import ekf_math as em
+from mata_eval_plugins.estimators.homography_ekf import HomographyEKF, relative_confidence
+
+from test_homography_ekf import DT, numerical_jacobian, random_state
+
+P = HomographyEKF.Params
+
+
+def rotation_about(c, deg: float, scale: float = 1.0) -> np.ndarray:
+    a = math.radians(deg)
+    R = scale * np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    H = np.eye(3)
+    H[:2, :2] = R
+    H[:2, 2] = np.asarray(c) - R @ np.asarray(c)
+    return H
+
+
+def mapped_samples(H: np.ndarray, box: np.ndarray, n: int = 200_000, seed: int = 0) -> np.ndarray:
+    """Points uniform in the box (x1, y1, x2, y2), mapped through H."""
+    rng = np.random.default_rng(seed)
+    p = np.column_stack([rng.uniform(box[0], box[2], n), rng.uniform(box[1], box[3], n), np.ones(n)])
+    q = p @ H.T
+    return q[:, :2] / q[:, 2:]
+
+
+def propagate(H: np.ndarray, box: np.ndarray, mode: str) -> np.ndarray:
+    x = np.concatenate([box, H.reshape(9), [0.0, 0.0]])
+    return em.transition(x, DT, 1, mode)[0][:4]
+
+
+def test_local_scale_is_the_root_of_the_jacobian_determinant_with_its_derivatives():
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        x = random_state(rng, 1)
+        H, p = x[4:13].reshape(3, 3), np.array([x[0], x[1]])
+        s, ds_dp, ds_dh = em.local_scale(H, p)
+        assert s == pytest.approx(math.sqrt(abs(np.linalg.det(em.jac_point(H, p)))), rel=1e-12)
+        f = lambda v: np.array([em.local_scale(v[2:].reshape(3, 3), v[:2])[0]])  # noqa: E731
+        N = numerical_jacobian(lambda v: f(np.concatenate([v[:2], v[2:]])), np.concatenate([p, H.reshape(9)]))
+        np.testing.assert_allclose(np.concatenate([ds_dp, ds_dh]), N[0], rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("n_deriv", [1, 2])
+def test_centre_transition_jacobian_matches_numerical_differentiation(n_deriv):
+    rng = np.random.default_rng(10 + n_deriv)
+    for _ in range(5):
+        x = random_state(rng, n_deriv)
+        _, F = em.transition(x, DT, n_deriv, "centre")
+        N = numerical_jacobian(lambda v: em.transition(v, DT, n_deriv, "centre")[0], x)
+        np.testing.assert_allclose(F, N, rtol=1e-5, atol=1e-6 * np.abs(F).max())
+
+
+def test_a_rolling_camera_keeps_the_box_size_where_the_paper_shears_it():
+    """24 degree roll about the box centre: the target's image is the same rectangle turned;
+    its centroid (Monte Carlo) stays put and its area is kept. Moving the centre and scaling the
+    size keeps 60x30; moving the two corners (paper) gives w cos - h sin = 42.6 px wide."""
+    box = np.array([200.0, 100.0, 260.0, 130.0])
+    H = rotation_about((230.0, 115.0), 24.0)
+    pts = mapped_samples(H, box)
+    ours = propagate(H, box, "centre")
+    np.testing.assert_allclose(0.5 * (ours[:2] + ours[2:]), pts.mean(axis=0), atol=0.1)
+    np.testing.assert_allclose(ours[2:] - ours[:2], [60.0, 30.0], atol=1e-9)
+    paper = propagate(H, box, "corners")
+    a = math.radians(24.0)
+    assert paper[2] - paper[0] == pytest.approx(60 * math.cos(a) - 30 * math.sin(a), abs=1e-9)
+
+
+def test_under_a_projective_homography_the_box_keeps_the_imaged_area_and_centroid():
+    """Zoom, rotation and perspective: the propagated box's area equals the area of the
+    target's image (Monte Carlo: the mean |det J_g| over the box times its area, within 1 %),
+    and its centre lies within 0.5 px of the image's centroid."""
+    box = np.array([300.0, 200.0, 340.0, 230.0])
+    H = rotation_about((320.0, 215.0), 10.0, scale=1.08)
+    H[2, :2] = [2e-4, -1e-4]
+    H = H / H[2, 2]
+    pts_in = np.random.default_rng(1).uniform(box[:2], box[2:], (100_000, 2))
+    dets = [abs(np.linalg.det(em.jac_point(H, p))) for p in pts_in[:4000]]
+    area = float(np.mean(dets)) * 40 * 30
+    ours = propagate(H, box, "centre")
+    w, h = ours[2:] - ours[:2]
+    assert w * h == pytest.approx(area, rel=0.01)
+    np.testing.assert_allclose(0.5 * (ours[:2] + ours[2:]), mapped_samples(H, box).mean(axis=0), atol=0.5)
+
+
+def test_robust_noise_hand_computed():
+    """nu = (3, 4, 0, 0), P_zz = 0, R = I: d2 = 25 > 18.47, so R grows by 25 / 18.47;
+    nu = (3, 0, 0, 0): d2 = 9, R unchanged."""
+    R = np.eye(4)
+    assert em.mahalanobis2(np.array([3.0, 4.0, 0, 0]), R) == pytest.approx(25.0)
+    np.testing.assert_allclose(em.robust_noise(np.array([3.0, 4.0, 0, 0]), np.zeros((4, 4)), R, 18.47),
+                               R * 25.0 / 18.47)
+    assert em.robust_noise(np.array([3.0, 0, 0, 0]), np.zeros((4, 4)), R, 18.47) is R
+    # correlated: S = [[2, 1], [1, 2]], nu = (1, -1): S^-1 nu = (1, -1), d2 = 2
+    assert em.mahalanobis2(np.array([1.0, -1.0]), np.array([[2.0, 1.0], [1.0, 2.0]])) == pytest.approx(2.0)
+
+
+def test_relative_confidence_hand_computed():
+    assert relative_confidence((), 0.05) == 1.0
+    assert relative_confidence((0.2, 0.1, 0.3), 0.1) == pytest.approx(0.5)
+    assert relative_confidence((0.2, 0.1, 0.3), 0.5) == 1.0
+    assert relative_confidence((0.2,), 0.0) == 0.0
+    assert relative_confidence((0.2,), math.nan) == 0.0
+
+
+def _dets(est, confs, box=Box(100, 100, 40, 40), every=3):
+    """Feeds boxes at fixed place every 3rd tick; returns the ticks whose box was used (the
+    gate's accepted history grows by one per accepted box)."""
+    est.initialize(box, 0.0)
+    used = []
+    for i, c in enumerate(confs):
+        k = (i + 1) * every
+        before = len(est.state.gate.accepted)
+        est.step(k * DT, [], [Stamped(TrackerOutput(box, c), k * DT, k * DT)])
+        if len(est.state.gate.accepted) > before:
+            used.append(i)
+    return used
+
+
+def test_relative_gate_accepts_a_low_but_steady_tracker_and_keeps_the_drop_test():
+    """A VitTrack-like confidence of 0.15 +- 0.02 on target: the paper's absolute gate
+    (tau_ewma 0.25) would reject all; relative to its own median it is accepted. A fall to 0.02
+    (an eighth of the median, EWMA of relative confidence 0.3*0.13 + 0.7*1 = 0.74, drop 0.61
+    > tau_diff 0.5) is rejected, and so is a tracker that reports 0 (found nothing)."""
+    confs = [0.15, 0.13, 0.17, 0.15, 0.16, 0.14, 0.02, 0.15, 0.0, 0.15]
+    used = _dets(HomographyEKF(P()), confs)
+    assert used == [0, 1, 2, 3, 4, 5, 7, 9]
+    from mata_eval_plugins.estimators.homography_ekf import confidence_gate
+    s, accepted = None, []
+    for c in confs:
+        s, ok = confidence_gate(s, c, 0.3, 0.25, 0.25)
+        accepted.append(ok)
+    assert not any(accepted[1:])  # the paper's thresholds: everything after the seed rejected
+
+
+def test_r_grows_as_the_relative_confidence_falls():
+    est = HomographyEKF(P())
+    est.initialize(Box(100, 100, 40, 40), 0.0)
+    x = est.state.x
+    side = 40.0
+    r = 1.0 + (0.05 * side) ** 2
+    np.testing.assert_allclose(est._box_noise(x, 1.0), np.eye(4) * r)
+    np.testing.assert_allclose(est._box_noise(x, 0.5), np.eye(4) * r * 4)
+    np.testing.assert_allclose(est._box_noise(x, 0.0), np.eye(4) * r * 100)
