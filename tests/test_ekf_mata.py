@@ -153,3 +153,22 @@ def test_r_grows_as_the_relative_confidence_falls():
     np.testing.assert_allclose(est._box_noise(x, 1.0), np.eye(4) * r)
     np.testing.assert_allclose(est._box_noise(x, 0.5), np.eye(4) * r * 4)
     np.testing.assert_allclose(est._box_noise(x, 0.0), np.eye(4) * r * 100)
+
+
+def test_until_a_box_is_used_the_velocity_is_the_mixture_of_world_and_image_still():
+    """A camera panning 6 px per tick: follow_prior 1 keeps the box still in the image, 0 (the
+    paper) carries it with the background (6 px per tick), 0.5 halfway; the velocity variance
+    grows by w (1 - w) v_img^2 (v_img = -6 px / (1/30 s) = -180 px/s)."""
+    T = np.array([[1.0, 0, 6.0], [0, 1.0, 0], [0, 0, 1.0]])
+    for w, shift in ((1.0, 0.0), (0.0, 18.0), (0.5, 9.0)):
+        est = HomographyEKF(P(follow_prior=w))
+        est.initialize(Box(100, 100, 40, 40), 0.0)
+        for k in range(1, 4):
+            e = est.step(k * DT, [Stamped(Motion(T), k * DT, k * DT)])
+        assert e.box.cx == pytest.approx(120.0 + shift, abs=1e-4)  # H measured to 1e-4 px
+        np.testing.assert_allclose(est.state.x[em.deriv_slice(0)], [-180.0 * w, 0.0], atol=1e-2)
+    P0_v = np.eye(2) * 1e4
+    x = np.concatenate([[0, 0, 10, 10], T.reshape(9), [0, 0]])
+    np.testing.assert_allclose(em.image_static_velocity(x, 0.5), [-12.0, 0.0])
+    _, Pm = em.velocity_mixture(x, np.eye(15), np.array([-12.0, 0.0]), 0.5, P0_v)
+    assert Pm[13, 13] == pytest.approx(1e4 + 0.25 * 144) and Pm[0, 13] == 0.0

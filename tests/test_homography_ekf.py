@@ -102,7 +102,7 @@ def test_every_step_matches_filterpy(model, preset):
     ExtendedKalmanFilter given the same F, Q, H, R (relative 1e-9); under the mata preset Q and
     R follow the box size (the plugin's own noise functions give them)."""
     rng = np.random.default_rng(42)
-    est = HomographyEKF(P(model=model, gating=False, preset=preset))
+    est = HomographyEKF(P(model=model, gating=False, preset=preset, follow_prior=0.0))
     box0 = Box(200.0, 150.0, 40.0, 30.0)
     est.initialize(box0, 0.0)
     n = est.state.x.size
@@ -201,12 +201,12 @@ def test_motion_gate_uses_tau_sigma_on_the_transferred_covariance():
     small = np.diag([0, 0, 0.01, 0, 0, 0.01, 0, 0, 0])
     assert em.transferred_sigma(H, big, np.array([120.0, 120.0])) == pytest.approx(5.0)
     for cov, shift in ((big, 0.0), (small, 10.0)):
-        est = HomographyEKF(P(p0_v=1e-6))
+        est = HomographyEKF(P(p0_v=1e-6, follow_prior=0.0))
         est.initialize(box, 0.0)
         e = est.step(DT, [Stamped(Motion(H, cov), DT, DT)])
         assert e.box.cx == pytest.approx(120.0 + shift, abs=0.05)
     # without thresholds the uncertain homography is used
-    est = HomographyEKF(P(p0_v=1e-6, gating=False))
+    est = HomographyEKF(P(p0_v=1e-6, gating=False, follow_prior=0.0))
     est.initialize(box, 0.0)
     assert est.step(DT, [Stamped(Motion(H, big), DT, DT)]).box.cx > 125.0
 
@@ -301,7 +301,7 @@ def test_compose_covariance_matches_monte_carlo():
 def test_motions_arriving_together_are_composed():
     """Two translations of 4 px arriving in one tick move the box by 8 px, not 4."""
     T = np.array([[1.0, 0, 4.0], [0, 1.0, 0], [0, 0, 1.0]])
-    est = HomographyEKF(P(p0_v=1e-6))
+    est = HomographyEKF(P(p0_v=1e-6, follow_prior=0.0))
     est.initialize(Box(100, 100, 40, 40), 0.0)
     e = est.step(DT, [Stamped(Motion(T), DT / 2, DT), Stamped(Motion(T), DT, DT)])
     assert e.box.cx == pytest.approx(128.0, abs=0.05)

@@ -230,6 +230,40 @@ def _local_scale(h: list, x: float, y: float, w: float) -> tuple[float, np.ndarr
     return s, ds_dp, ds_dh
 
 
+def image_static_velocity(x: np.ndarray, dt: float) -> np.ndarray:
+    """The centre velocity v for which the transition keeps the box centre where it is in the
+    image: g(c) + J_g(c) v dt = c, i.e. v = J_g(c)^-1 (c - g(c)) / dt (H from the state)."""
+    H = x[HOM].reshape(3, 3)
+    c = 0.5 * (x[TL] + x[BR])
+    return np.linalg.solve(jac_point(H, c), c - project(H, c)) / dt
+
+
+def velocity_mixture(x: np.ndarray, P: np.ndarray, v_img: np.ndarray, w: float,
+                     P0_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity reset to the moment-matched mixture of N(0, P0_v) (probability 1 - w) and
+    N(v_img, P0_v) (probability w): mean w v_img, covariance P0_v + w (1 - w) v_img v_img^T,
+    uncorrelated with the rest of the state (nothing has measured it yet)."""
+    sl = deriv_slice(0)
+    x = x.copy()
+    x[sl] = w * v_img
+    P = P.copy()
+    P[sl, :] = 0.0
+    P[:, sl] = 0.0
+    P[sl, sl] = P0_v + w * (1.0 - w) * np.outer(v_img, v_img)
+    return x, P
+
+
+def relax_velocity(x: np.ndarray, v_ref: np.ndarray, a: float) -> tuple[np.ndarray, np.ndarray]:
+    """v -> v_ref + a (v - v_ref) (an Ornstein-Uhlenbeck step towards the input ``v_ref``,
+    a = exp(-dt / tau)); returns the new state and its Jacobian (identity but a on v)."""
+    x = x.copy()
+    sl = deriv_slice(0)
+    x[sl] = v_ref + a * (x[sl] - v_ref)
+    A = np.eye(len(x))
+    A[sl, sl] *= a
+    return x, A
+
+
 # --- generic EKF algebra ----------------------------------------------------------------------
 
 def predict_cov(P: np.ndarray, F: np.ndarray, Q: np.ndarray) -> np.ndarray:

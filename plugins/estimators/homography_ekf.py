@@ -43,10 +43,10 @@ _R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
                   box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
-                  q_box_rel=0.0, q_v=1e3),
+                  q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0),
     "mata": dict(gate="relative", tau_ewma=0.5, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
                  box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
-                 q_box_rel=0.2, q_v=1e2),
+                 q_box_rel=0.2, q_v=1e2, follow_prior=0.5, velocity_decay_s=0.0),
 }
 
 
@@ -87,6 +87,7 @@ class GateState:
 
     ewma: float | None = None
     accepted: tuple[float, ...] = ()
+    n_used: int = 0  # boxes used since init
 
 
 @dataclass(frozen=True)
@@ -163,6 +164,13 @@ class HomographyEKF:
         delay: Literal["ignore", "compensate"] | None = _preset_param(
             "delay", "delayed measurements: apply on arrival (paper) or at their capture time")
         history_s: float = param(2.0, "seconds of state history kept for delay: compensate")
+        follow_prior: float | None = _preset_param(
+            "follow_prior", "until the first box is used, the own velocity is the mixture of "
+            "'still in the world' (paper: zero) and, with this probability, 'still in the image' "
+            "(a camera that follows its target)")
+        velocity_decay_s: float | None = _preset_param(
+            "velocity_decay_s", "time constant (s) of the own velocity's relaxation towards keeping "
+            "the target still in the image once boxes are used; 0 = none (paper)")
         h_update: Literal["before_predict", "after_predict"] = param(
             "before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
         box_motion: Literal["corners", "centre"] | None = _preset_param(
@@ -208,10 +216,12 @@ class HomographyEKF:
             if not self.history_s > 0:
                 raise ValueError(f"homography_ekf: `history_s` must be positive, got {self.history_s}")
             for key in ("q_box", "q_box_rel", "q_v", "q_a", "q_j", "p0_box", "p0_v", "p0_a", "p0_j",
-                        "tau_sigma", "r_box_rel", "chi2_gate"):
+                        "tau_sigma", "r_box_rel", "chi2_gate", "velocity_decay_s", "follow_prior"):
                 v = getattr(self, key)
                 if v is not None and not v >= 0:
                     raise ValueError(f"homography_ekf: `{key}` must be >= 0, got {v}")
+            if self.follow_prior is not None and not self.follow_prior <= 1:
+                raise ValueError(f"homography_ekf: `follow_prior` must be in [0, 1], got {self.follow_prior}")
             if self.r_box is not None and not self.r_box > 0:
                 raise ValueError(f"homography_ekf: `r_box` must be positive, got {self.r_box}")
 
@@ -314,6 +324,7 @@ class HomographyEKF:
         if before:
             x, P = self._update_motion(x, P, motions)
         if tick.dt > 0:
+            x, P = self._velocity_prior(x, P, tick.dt, gate.n_used)
             fx, F = em.transition(x, tick.dt, self.n_deriv, self.params.box_motion)
             x, P = fx, em.predict_cov(P, F, np.diag(self._process_noise(x) * tick.dt))
         if not before:
@@ -323,6 +334,24 @@ class HomographyEKF:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             return tick.before  # numerically degenerate input (e.g. an absurd H): hold, never NaN
         return FilterState(x, P, gate)
+
+    def _velocity_prior(self, x: np.ndarray, P: np.ndarray, dt: float,
+                        n_used: int) -> tuple[np.ndarray, np.ndarray]:
+        """Beyond the paper. Until the first box is used, the own velocity is the moment-matched
+        mixture of "still in the world" (v = 0, the paper's initial state) and, with
+        probability ``follow_prior``, "still in the image" (the camera follows its target: the
+        velocity that cancels the camera motion at the box); afterwards, with
+        ``velocity_decay_s`` = tau > 0, it relaxes towards the latter with time constant tau."""
+        p = self.params
+        if p.follow_prior == 0 and p.velocity_decay_s == 0:
+            return x, P
+        v_img = em.image_static_velocity(x, dt)
+        if n_used < 1 and p.follow_prior > 0:
+            return em.velocity_mixture(x, P, v_img, p.follow_prior, self._p0[em.deriv_slice(0), em.deriv_slice(0)])
+        if n_used >= 1 and p.velocity_decay_s > 0:
+            x, A = em.relax_velocity(x, v_img, float(np.exp(-dt / p.velocity_decay_s)))
+            P = A @ P @ A.T
+        return x, P
 
     def _process_noise(self, x: np.ndarray) -> np.ndarray:
         """Q rates per second: the corners' grow with the box side sqrt(w h) (q_box_rel)."""
@@ -388,6 +417,7 @@ class HomographyEKF:
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
+        gate = dataclasses.replace(gate, n_used=gate.n_used + 1)
         if p.gate == "relative":
             kept = gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (float(out.confidence),)
             gate = dataclasses.replace(gate, accepted=kept)
