@@ -47,7 +47,8 @@ def sequence(request) -> tuple[Sequence, np.ndarray]:
 def _centre_error(sequence, egomotion) -> np.ndarray:
     seq, centres = sequence
     reg = load_registry()
-    ekf = reg.get("estimator", "homography_ekf").cls()
+    cls = reg.get("estimator", "homography_ekf").cls
+    ekf = cls(cls.Params(follow_prior=0.0))  # a ground patch: still in the world, not in the image
     ltp = reg.get("protocol", "ltp").cls()
     run = run_sequence(seq, BlindTracker(), egomotion, ekf, ltp, np.random.default_rng(0))
     c = run.boxes[:, :2] + run.boxes[:, 2:] / 2

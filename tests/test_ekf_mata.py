@@ -172,3 +172,27 @@ def test_until_a_box_is_used_the_velocity_is_the_mixture_of_world_and_image_stil
     np.testing.assert_allclose(em.image_static_velocity(x, 0.5), [-12.0, 0.0])
     _, Pm = em.velocity_mixture(x, np.eye(15), np.array([-12.0, 0.0]), 0.5, P0_v)
     assert Pm[13, 13] == pytest.approx(1e4 + 0.25 * 144) and Pm[0, 13] == 0.0
+
+
+def test_relax_velocity_hand_computed_and_a_lost_target_stays_still_in_a_following_camera():
+    """v = (100, 0), v_ref = (-20, 10), a = 0.5: v' = (40, 5), Jacobian 0.5 on v. In the
+    filter: a camera panning 6 px per tick with no box for 3 s after a box fixed the velocity
+    at 0 (still in the world), the box relaxes towards still-in-the-image with tau = 1 s (no
+    relaxation: carried with the background)."""
+    x = np.concatenate([[0, 0, 10, 10], np.eye(3).reshape(9), [100.0, 0.0]])
+    x2, A = em.relax_velocity(x, np.array([-20.0, 10.0]), 0.5)
+    np.testing.assert_allclose(x2[13:], [40.0, 5.0])
+    assert A[13, 13] == A[14, 14] == 0.5 and A[0, 0] == 1.0
+    T = np.array([[1.0, 0, 6.0], [0, 1.0, 0], [0, 0, 1.0]])
+    moved = {}
+    for tau in (0.0, 1.0):
+        est = HomographyEKF(P(velocity_decay_s=tau, follow_prior=0.0))
+        est.initialize(Box(100, 100, 40, 40), 0.0)
+        # tick 1: the box is where the camera carried it (still in the world, v = 0)
+        est.step(DT, [Stamped(Motion(T), DT, DT)], [Stamped(TrackerOutput(Box(106, 100, 40, 40), 0.9), DT, DT)])
+        for k in range(2, 92):
+            e = est.step(k * DT, [Stamped(Motion(T), k * DT, k * DT)])
+        moved[tau] = e.box.cx - 126.0
+    assert moved[0.0] == pytest.approx(90 * 6.0, rel=0.02)   # carried with the background
+    # image speed 180 px/s exp(-t / 1 s), integrated over 3 s: 180 (1 - e^-3) = 171 px
+    assert moved[1.0] == pytest.approx(171.0, rel=0.05)

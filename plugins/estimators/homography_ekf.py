@@ -46,7 +46,7 @@ PRESETS: dict[str, dict[str, Any]] = {
                   q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0),
     "mata": dict(gate="relative", tau_ewma=0.5, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
                  box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
-                 q_box_rel=0.2, q_v=1e2, follow_prior=0.5, velocity_decay_s=0.0),
+                 q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0),
 }
 
 
@@ -123,17 +123,20 @@ class HomographyEKF:
         """Reports (paper Table 3): (ego-motion used, EKF used, what differs from the paper's
         configuration) of a resolved parameter block; ``egomotion``: the run has a block B."""
         default = cls.Params()
-        p = {f: params.get(f, getattr(default, f)) for f in ("camera", "model", "gating", "delay", "tau_ewma")}
+        preset = params.get("preset") or "paper"   # runs stored before the presets were the paper's
+        p = {f: getattr(default, f) for f in ("camera", "model", "gating")}
+        p.update(PRESETS[preset])
+        p.update({k: v for k, v in params.items() if v is not None and k in p})
         ego = egomotion and p["camera"]
-        parts = []
+        parts = ["improved block C (preset mata)"] if preset == "mata" else []
         if not ego:
             parts.append("no camera compensation")
         parts.append({"ca": "constant acceleration model", "cj": "constant jerk model"}.get(p["model"], ""))
         if not p["gating"]:
             parts.append("no threshold on measurements")
-        if p["delay"] == "compensate":
+        if p["delay"] != PRESETS[preset]["delay"] and p["delay"] == "compensate":
             parts.append("delay compensation")
-        if p["gating"] and p["tau_ewma"] != default.tau_ewma:
+        if p["gating"] and p["tau_ewma"] != PRESETS[preset]["tau_ewma"]:
             parts.append(f"confidence gate tau_ewma = {p['tau_ewma']:g}")
         return ego, True, ", ".join(x for x in parts if x) or "MATA"
 

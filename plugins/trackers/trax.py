@@ -50,6 +50,8 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
+from .crop import usable_prior
+
 STDERR_LINES = 20  # lines of the tracker's stderr quoted in a failure reason
 QUIT_GRACE_S = 2.0  # how long a tracker may take to exit after `quit` before it is killed
 SCRATCH_DIR = "/dev/shm"  # frames handed over as files go to memory-backed storage when it exists
@@ -275,6 +277,7 @@ class TraxTracker:
         if self._proc is None:
             raise RuntimeError("trax: track() called before initialize()")
         self._frame += 1
+        prior = usable_prior(prior, 0.0, 0.0, *image.shape[:2])  # finite and inside the image, or none
         props = {} if prior is None else {"prior_x": repr(float(prior[0])), "prior_y": repr(float(prior[1]))}
         images = self._image(image)
         objects, _ = self._call(f"frame {self._frame}", lambda: self._proc.client.frame(images, props, []))
