@@ -72,8 +72,8 @@ def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewm
 def relative_confidence(history: tuple[float, ...], confidence: float) -> float:
     """The confidence relative to the tracker's own typical value on this sequence: P_k divided
     by the median of the confidences it gave on the last accepted boxes (``history``, at most
-    CONFIDENCE_HISTORY), capped at 1 (1 for the first output). Makes the paper's gate thresholds tracker-independent: VitTrack's sigmoid
-    peak sits near 0.2 on target on UAVDT, KCF's PSR score near 0.6."""
+    CONFIDENCE_HISTORY), capped at 1 (1 for the first output). Makes the paper's gate
+    thresholds tracker-independent: absolute ones suit one tracker's confidence scale only."""
     if not np.isfinite(confidence) or confidence <= 0:
         return 0.0
     if not history:
@@ -153,7 +153,7 @@ class HomographyEKF:
             True, "reject measurements by the tests below; false = use every measurement")
         gate: Literal["absolute", "relative"] | None = _preset_param(
             "gate", "confidence the EWMA gate sees: the tracker's own (paper eq. ewma_score) or "
-            "relative to its median on accepted boxes since init")
+            "relative to its median on the last 100 accepted boxes")
         alpha_ewma: float = param(
             0.3, "EWMA smoothing factor of the tracker confidence (paper eq. ewma_score)")
         tau_ewma: float | None = _preset_param(
@@ -162,7 +162,8 @@ class HomographyEKF:
             "tau_diff", "reject the tracker's box when its confidence is this far below the EWMA")
         chi2_gate: float | None = _preset_param(
             "chi2_gate", "a box whose squared Mahalanobis innovation (4 corners) exceeds this "
-            "(18.47 = chi2 99.9 %) gets R inflated until it equals it; 0 = off")
+            "(18.47 = chi2 99.9 %) gets R multiplied by d2 / chi2_gate (a bounded step, not a "
+            "reject); 0 = off")
         tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
         delay: Literal["ignore", "compensate"] | None = _preset_param(
             "delay", "delayed measurements: apply on arrival (paper) or at their capture time")
@@ -350,7 +351,8 @@ class HomographyEKF:
             return x, P
         v_img = em.image_static_velocity(x, dt)
         if n_used < 1 and p.follow_prior > 0:
-            return em.velocity_mixture(x, P, v_img, p.follow_prior, self._p0[em.deriv_slice(0), em.deriv_slice(0)])
+            v = em.deriv_slice(0)
+            return em.velocity_mixture(x, P, v_img, p.follow_prior, self._p0[v, v])
         if n_used >= 1 and p.velocity_decay_s > 0:
             x, A = em.relax_velocity(x, v_img, float(np.exp(-dt / p.velocity_decay_s)))
             P = A @ P @ A.T
@@ -403,8 +405,8 @@ class HomographyEKF:
         """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
         confidence relative to its median), then a partial update of the four corners with R of
         :meth:`_box_noise`, inflated for an improbable innovation (chi2_gate; a hard reject
-        there locks a confidently wrong filter out of all later boxes). A non-finite or empty box is never
-        used."""
+        there locks a confidently wrong filter out of all later boxes). A non-finite or empty
+        box is never used."""
         p = self.params
         conf = float(out.confidence)
         if p.gate == "relative":
