@@ -4,6 +4,7 @@ same tracker alone, per dataset, clean and occluded (``occlusion: {}``), LTP and
 
     python benchmarks/mata_gain.py                  # the full table (about 30 min on 2 cores)
     python benchmarks/mata_gain.py --datasets aerial30 --trackers kcf --quick
+    python benchmarks/mata_gain.py --out DIR --reuse      # re-print the table of runs in DIR
 
 Datasets (``$MATA_SHARED_DATA``, default ../shared/data):
 - ``aerial30``: 4 real DTB70/UAVDT sequences at 30 fps; EOP runs the tracker at 10 Hz;
@@ -144,6 +145,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: a new temp folder)")
     ap.add_argument("-j", "--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="2 synthetic sequences instead of 6")
+    ap.add_argument("--reuse", action="store_true", help="do not run a dataset whose folder under "
+                    "--out already holds scored runs (re-print the table of earlier runs)")
     ap.add_argument("--estimator", default="{}", help="YAML mapping of extra homography_ekf "
                     "parameters for the mata run (the default preset when empty)")
     args = ap.parse_args(argv)
@@ -157,9 +160,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.datasets:
         dataset, hz = all_sets[name]
         exp = experiment(name, dataset, hz, args.trackers, out, estimator)
-        exp_file = out / f"{name}.yaml"
-        exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
-        run_cli(exp_file, args.jobs)
+        if not (args.reuse and any((out / name).glob("*/scores.json"))):
+            exp_file = out / f"{name}.yaml"
+            exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
+            run_cli(exp_file, args.jobs)
         results[name] = {d.name: read_scores(d) for d in (out / name).iterdir()
                          if (d / "scores.json").is_file()}
     wall = time.perf_counter() - t0
