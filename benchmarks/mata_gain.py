@@ -2,15 +2,18 @@
 (``homography_ekf`` preset ``mata``) and of the paper's block C (``preset: paper``) against the
 same tracker alone, per dataset, clean and occluded (``occlusion: {}``), LTP and EOP.
 
-    python benchmarks/mata_gain.py                  # the full table (about 30 min on 2 cores)
+    python benchmarks/mata_gain.py --quick          # the table of docs/results.md (issue 14)
     python benchmarks/mata_gain.py --datasets aerial30 --trackers kcf --quick
     python benchmarks/mata_gain.py --out DIR --reuse      # re-print the table of runs in DIR
 
 Datasets (``$MATA_SHARED_DATA``, default ../shared/data):
 - ``aerial30``: 4 real DTB70/UAVDT sequences at 30 fps; EOP runs the tracker at 10 Hz;
 - ``uav123_10fps``: 2 real UAV123 sequences at 10 fps; EOP runs the tracker at 2 Hz;
-- ``synthetic``: 6 sequences of the built-in suite (syn001..syn006, one of each kind, 300
-  frames at 30 fps); EOP at 10 Hz.
+- ``synthetic``: 6 sequences of the built-in suite (syn001..syn006, 300 frames at 30 fps;
+  ``--quick``: syn001 and syn002); EOP at 10 Hz.
+
+CPU cost measured with ``--quick`` (2 cores under heavy load): aerial30 + uav123_10fps 198 s,
+synthetic 166 s; the 6-sequence synthetic set costs about 3 times the latter.
 The EOP rates are exact divisors of the frame rate; the ``Hz`` column is the tracker rate the
 scheduler actually ran (so a wrong rate shows).
 
