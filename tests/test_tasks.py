@@ -177,16 +177,18 @@ def test_real_blocks_with_occlusion_give_the_same_files_as_one_run_at_a_time(tmp
             assert (out / f"{seq.name}.trace.csv").read_text() == run.trace_csv(), spec.name
 
 
-def test_plan_runs_the_longest_first_and_splits_only_what_bounds_the_wall_time():
+def test_plan_runs_the_longest_first_and_splits_what_would_keep_workers_waiting():
     a = Task(0, "long", 100, ("r1", "r2", "r3", "r4"))  # 400 frames to schedule
     b = Task(1, "mid", 50, ("r1", "r2"))                 # 100
     c = Task(2, "short", 10, ("r1",))                    # 10
     assert plan([c, b, a], workers=1) == [a, b, c]
-    # 4 workers: an even share is 510 / 4 = 127.5 frames; `long` is halved twice, down to
-    # one run each (100 frames), the others stay whole.
+    # 4 workers: an even share is 510 / 4 = 127.5 frames: `long` is halved twice, down to one
+    # run each (100 frames); then, with 6 tasks for 4 workers (fewer than 2 each), `mid` too.
     planned = plan([c, b, a], workers=4)
-    assert [t.cost for t in planned] == [100, 100, 100, 100, 100, 10]
-    assert planned[-1] == c and b in planned
-    parts = [t for t in planned if t.sequence == "long"]
-    assert sorted(r for t in parts for r in t.runs) == ["r1", "r2", "r3", "r4"]
-    assert all(len(t.runs) == 1 for t in parts)
+    assert [(t.sequence, t.cost) for t in planned] == [("long", 100)] * 4 + [("mid", 50)] * 2 + [("short", 10)]
+    for name, runs in (("long", ["r1", "r2", "r3", "r4"]), ("mid", ["r1", "r2"])):
+        parts = [t for t in planned if t.sequence == name]
+        assert sorted(r for t in parts for r in t.runs) == runs and all(len(t.runs) == 1 for t in parts)
+    # 2 workers, 2 tasks of 4 runs: halved once each, 4 tasks of 2 runs.
+    d = Task(3, "other", 100, ("r1", "r2", "r3", "r4"))
+    assert [len(t.runs) for t in plan([a, d], workers=2)] == [2, 2, 2, 2]

@@ -149,7 +149,10 @@ class RayExecutor:
     def __enter__(self) -> "RayExecutor":
         ray = self.ray
         if not ray.is_initialized():
+            # The nodes see this shell's MATA_* settings (model files, caches, shared data).
+            env = {k: v for k, v in os.environ.items() if k.startswith("MATA_")}
             ray.init(address=self.address, num_cpus=None if self.address else self.cpus,
+                     runtime_env={"env_vars": env} if env else None,
                      include_dashboard=False, logging_level="warning", log_to_driver=False)
             self.started = True
         self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
@@ -164,7 +167,7 @@ class RayExecutor:
         ray = self.ray
         remote = ray.remote(num_cpus=1, max_retries=1)(_ray_task)
         exp_ref = ray.put(exp)
-        pending = {remote.remote(exp_ref, task): task for task in tasks}
+        pending = {remote.remote(exp_ref, task, os.getcwd()): task for task in tasks}
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=stop.POLL_S)
@@ -189,6 +192,10 @@ class RayExecutor:
                                 f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
 
 
-def _ray_task(exp: Experiment, task: Task) -> list[SequenceResult]:
+def _ray_task(exp: Experiment, task: Task, cwd: str) -> list[SequenceResult]:
+    """On a node: relative dataset roots mean the same as for the driver when its folder exists
+    there too (a shared file system, or data staged at the same path on every node)."""
+    if os.path.isdir(cwd):
+        os.chdir(cwd)
     one_thread_per_process()
     return run_task(exp, task)

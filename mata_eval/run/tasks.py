@@ -93,16 +93,17 @@ def make_tasks(pending: list[tuple[RunSpec, int, Sequence]]) -> list[Task]:
 
 
 def plan(tasks: list[Task], workers: int) -> list[Task]:
-    """Longest task first (LPT order: a long task started last would finish last). A task
-    bigger than an even share of all the work per worker is halved (its runs split in two, so
-    fewer runs share its decode) until none is: the longest task bounds the wall time."""
+    """Longest task first (LPT order: a long task started last would finish last). The biggest
+    task is halved (its runs split in two, so fewer runs share its decode) while it is bigger
+    than an even share of all the work per worker (the longest task bounds the wall time) or
+    while there are fewer than two tasks per worker (the last round would leave workers idle)."""
     share = sum(t.cost for t in tasks) / max(1, workers)
     heap = [(-t.cost, i, t) for i, t in enumerate(tasks)]
     heapq.heapify(heap)
     out: list[Task] = []
     while heap:
         _, i, t = heapq.heappop(heap)
-        if t.cost > share and len(t.runs) > 1:
+        if len(t.runs) > 1 and (t.cost > share or len(heap) + len(out) + 1 < 2 * workers):
             half = len(t.runs) // 2
             for j, runs in enumerate((t.runs[:half], t.runs[half:])):
                 part = dataclasses.replace(t, runs=runs)
