@@ -9,6 +9,7 @@ with the reason."""
 from __future__ import annotations
 
 import ctypes
+import multiprocessing
 import os
 import signal
 import sys
@@ -56,21 +57,25 @@ def one_thread_per_process() -> None:
     cv2.setNumThreads(1)
 
 
-def _local_worker() -> None:
+def _local_worker(parent: int | None) -> None:
     """A local worker ignores Ctrl-C (the driver stops it: SIGINT to the process group must not
-    fail the sequence it runs) and dies with the driver."""
+    fail the sequence it runs) and dies with its parent (process id ``parent``: the driver, or
+    None under ``forkserver``, whose server process ends with the driver)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    _die_with_parent()
+    _die_with_parent(parent)
     one_thread_per_process()
 
 
-def _die_with_parent() -> None:
+def _die_with_parent(parent: int | None) -> None:
     """Linux: ask the kernel to SIGKILL this process when its parent ends, even by ``kill -9``
     (``prctl(PR_SET_PDEATHSIG)``; no library wraps it, and polling the parent cannot interrupt
-    a block that is running). Elsewhere a worker outlives a killed driver until its task ends."""
+    a block that is running). A parent that ended before the request: exit now. Elsewhere a
+    worker outlives a killed driver until its task ends."""
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+    if parent is not None and os.getppid() != parent:
+        os._exit(1)
 
 
 class LocalExecutor:
@@ -103,7 +108,10 @@ class LocalExecutor:
         exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the workers
         terminated, so that it propagates at once (leaving the pool would wait for every task)."""
         lost = []
-        pool = ProcessPoolExecutor(max_workers=jobs, initializer=_local_worker)
+        context = multiprocessing.get_context()
+        parent = None if context.get_start_method() == "forkserver" else os.getpid()
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
+                                   initargs=(parent,))
         try:
             futures = {pool.submit(run_task, exp, task): task for task in tasks}
             waiting = set(futures)
