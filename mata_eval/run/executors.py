@@ -126,14 +126,10 @@ class LocalExecutor:
                         continue
                     done(futures[fut], results)
         except BaseException:
-            workers = list((pool._processes or {}).values())  # no public handle before Python 3.14
-            pool.shutdown(wait=False, cancel_futures=True)
-            for w in workers:
+            for w in list((pool._processes or {}).values()):  # no public handle before Python 3.14
                 w.terminate()
-            for w in workers:
-                w.join(5)
             raise
-        finally:
+        finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
             pool.shutdown(wait=True, cancel_futures=True)
         return lost
 
