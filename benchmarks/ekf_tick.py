@@ -1,6 +1,6 @@
 """Block C's whole tick against filterpy doing the same algebra, measured in the same run.
 
-    OMP_NUM_THREADS=1 python benchmarks/ekf_tick.py [--n 1000] [--repeat 7]
+    OMP_NUM_THREADS=1 python benchmarks/ekf_tick.py [--n 1000] [--repeat 7] [--preset mata|paper]
 
 - ours: one ``HomographyEKF.step()`` with one motion (9-value homography update, gated) and one
   detection (4 corners, EWMA gate), 15 states, constant velocity: the tick's bookkeeping, the
@@ -42,9 +42,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=1000, help="ticks per run")
     ap.add_argument("--repeat", type=int, default=7, help="runs (min and median reported)")
+    ap.add_argument("--preset", choices=("mata", "paper"), default=None, help="block C preset (default: the plugin's)")
     args = ap.parse_args(argv)
 
-    est = HomographyEKF()
+    est = HomographyEKF(HomographyEKF.Params(preset=args.preset) if args.preset else None)
     est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)
     clock = [0]
 
@@ -78,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         ours_us += per_tick_us(ours, args.n, 1)
         ref_us += per_tick_us(filterpy, args.n, 1)
     ratio = np.array(ref_us) / np.array(ours_us)
-    print(f"15 states, {args.n} ticks x {args.repeat} runs, CPU time, one thread")
+    print(f"15 states, preset {est.params.preset or 'default'}, {args.n} ticks x {args.repeat} runs, CPU time, one thread")
     print(f"  filterpy predict + 9-value + 4-value update (anchor)  us  min {min(ref_us):7.1f}  median {np.median(ref_us):7.1f}")
     print(f"  HomographyEKF.step(), one motion + one detection      us  min {min(ours_us):7.1f}  median {np.median(ours_us):7.1f}")
     print(f"  ratio filterpy / ours  min {ratio.min():.2f}  median {np.median(ratio):.2f}   (target >= 3, tick <= 20 us)")

@@ -39,3 +39,13 @@ def test_transferred_sigma_is_the_largest_axis():
         G = em.jac_hom(H, p)
         want = np.sqrt(np.linalg.eigvalsh(G @ C @ G.T)[-1])
         assert abs(em.transferred_sigma(H, C, p) - want) <= 1e-9 * want
+
+
+def test_relative_confidence_median_equals_numpy():
+    from mata_eval_plugins.estimators.homography_ekf import relative_confidence
+
+    rng = np.random.default_rng(2)
+    for n in (1, 2, 3, 50, 99, 100):
+        hist = tuple(rng.uniform(0.05, 1.0, n).tolist())
+        c = float(rng.uniform(0.01, 1.0))
+        assert relative_confidence(hist, c) == float(min(1.0, c / float(np.median(hist))))
