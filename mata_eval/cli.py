@@ -72,20 +72,25 @@ def cmd_run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment)
     if args.output:
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
-    print(f"experiment {exp.name}: {len(exp.runs)} run(s) -> {exp.output}")
-    outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=args.runs,
+    print(f"experiment {exp.name} ({exp.path}): {len(exp.runs)} run(s) -> {exp.output}", flush=True)
+    checked = _preflight(exp, args.runs)
+    if checked is None:
+        return 2
+    names = [r.name for r in checked.runs]
+    outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=names, sequences=args.sequences,
                               progress=not args.quiet, executor=_executor(args))
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:  # printed before the table too: the table does not show what is missing from it
         print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json", file=sys.stderr)
     if args.no_report:
         return 1 if failed else 0
-    from .report.overview import render_table
+    from .report.overview import has_challenges, render_table
     from .report.plots import plot_curves
 
-    scores = evaluate_experiment(exp, only=args.runs)
+    scores = evaluate_experiment(exp, only=names)
     print(render_table(scores, "terminal"))
-    if any(s.summary.groups for s in scores):
+    _print_deltas(scores)
+    if has_challenges(scores):
         print(render_table(scores, "terminal", table="challenges"))
     for s in scores:
         occ = s.summary.occluded_frames
@@ -100,6 +105,36 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def _preflight(exp: Any, only: Sequence[str] | None) -> Any:
+    """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
+    skipped optional run group and per problem. Returns the plan, or None when a problem
+    stops the experiment."""
+    from .run.preflight import plan, skipped_lines
+
+    checked = plan(exp, only)
+    for line in skipped_lines(checked.skipped):
+        print(line, flush=True)
+    for line in checked.problems:
+        print(f"error: {line}", file=sys.stderr)
+    if checked.problems:
+        return None
+    if not checked.runs:
+        print("error: no run left to do", file=sys.stderr)
+        return None
+    return checked
+
+
+def _print_deltas(scores: Sequence[Any]) -> None:
+    """The MATA-vs-baseline table under the results, when the runs have both."""
+    from .report.overview import mata_deltas
+    from .report.tables import render
+
+    t = mata_deltas(scores)
+    if t is not None:
+        print(t.caption + ":")
+        print(render(t, "terminal"))
+
+
 def cmd_validate(args: argparse.Namespace) -> int:
     from .run.config import load_experiment
 
@@ -108,7 +143,13 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for r in exp.runs:
         blocks = [f"{k}={getattr(r, k).name}" if getattr(r, k) else f"{k}=none"
                   for k in ("dataset", "tracker", "egomotion", "estimator", "protocol")]
-        print(f"  {r.name}: {' '.join(blocks)} occlusion={'on' if r.occlusion else 'off'}")
+        print(f"  {r.name}: {' '.join(blocks)} occlusion={'on' if r.occlusion else 'off'}"
+              + ("  (optional)" if r.optional else ""))
+    checked = _preflight(exp, None)
+    if checked is None:
+        return 2
+    print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
+                                                          if checked.skipped else ""))
     return 0
 
 
@@ -238,6 +279,8 @@ def cmd_report(args: argparse.Namespace) -> int:
                 print(f"wrote {path}")
             elif not out or fmt == "terminal":
                 print(text)
+                if table == "overall" and fmt == "terminal":
+                    _print_deltas(runs)
     if out and not args.no_plots:
         for p in plot_curves(runs, out):
             print(f"plot: {p}")
@@ -631,10 +674,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("run", help="run an experiment file, print its table, write plots")
-    p.add_argument("experiment", help="experiment YAML file")
+    p.add_argument("experiment", help="experiment YAML file, or the name of a shipped one (quickstart, protocols, ...)")
     p.add_argument("-j", "--jobs", type=int, default=None, help="worker processes (default: the cores available)")
     p.add_argument("--force", action="store_true", help="redo sequences that already have results")
     p.add_argument("--runs", nargs="+", metavar="RUN", help="only these named runs of the matrix")
+    p.add_argument("--sequences", nargs="+", metavar="SEQ", help="only these sequences of the dataset")
     p.add_argument("-o", "--output", help="output folder (overrides `output` in the file)")
     p.add_argument("--no-report", action="store_true", help="do not score and print the table")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -645,7 +689,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Ray cluster to use (default: start a local one with -j CPUs)")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("validate", help="check an experiment file and list its runs without running")
+    p = sub.add_parser("validate", help="check an experiment file and what its runs need (data, models, "
+                                        "backends), list its runs, run nothing")
     p.add_argument("experiment")
     p.set_defaults(func=cmd_validate)
 

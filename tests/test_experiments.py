@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from mata_eval.run.config import load_experiment
+from mata_eval.run.config import find_experiment, load_experiment, shipped_experiments
 from mata_eval.report.paper import ablation_marks, embedded_role, is_mata, protocol_label
 from mata_eval.run.timing_profile import read_profile
 
@@ -129,6 +129,24 @@ def test_embedded_roles_match_the_report():
 
 
 def test_quickstart_is_the_readme_job():
+    """Every shipped tracker that needs no torch, alone and in MATA, LTP and EOP@10Hz; the
+    ONNX trackers are optional (skipped with a line when their model files are not found)."""
     exp = load_experiment(ROOT / "experiments/quickstart.yaml")
     keys = {key(r) for r in exp.runs}
-    assert keys == {("synthetic", True, p, "kcf", m) for p in ("LTP", "EOP @ 10 Hz") for m in (False, True)}
+    assert keys == {("synthetic", True, p, t, m) for p in ("LTP", "EOP @ 10 Hz") for m in (False, True)
+                    for t in ("kcf", "vittrack", "nanotrack")}
+    assert {r.tracker.name for r in exp.runs if r.optional} == {"vittrack", "nanotrack"}
+
+
+def test_shipped_experiments_are_found_by_name(tmp_path, monkeypatch):
+    """From any folder (a wheel install has no experiments/ beside it), `quickstart` and
+    `experiments/quickstart.yaml` name the shipped file; a file that exists wins."""
+    monkeypatch.chdir(tmp_path)
+    shipped = find_experiment("quickstart")
+    assert shipped.is_file() and shipped.name == "quickstart.yaml"
+    assert find_experiment("experiments/quickstart.yaml") == shipped
+    (tmp_path / "experiments").mkdir()
+    own = tmp_path / "experiments" / "quickstart.yaml"
+    own.write_text("dataset: {name: synthetic}\ntracker: {name: kcf}\n")
+    assert find_experiment("experiments/quickstart.yaml") == Path("experiments/quickstart.yaml")
+    assert {p.stem for p in shipped_experiments()} >= {"quickstart", "protocols", "challenges"}

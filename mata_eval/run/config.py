@@ -18,6 +18,8 @@ Format (see README "Experiment files")::
     feedback: true
     protocol: {name: eop, tracker_hz: 10}
     metrics: {profile: default}
+    optional: [vittrack]             # runs with these matrix labels are skipped, with one line
+                                     # saying why, when their preflight check fails
     matrix:
       mata:                          # axis: label -> overrides of top-level keys
         baseline: {egomotion: null, estimator: null}
@@ -52,7 +54,8 @@ PLUGIN_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")  # = 
 NULLABLE = {"egomotion", "estimator", "occlusion"}
 TOP_LEVEL = {"name", "description", "seed", "output", "dataset", "occlusion", "tracker",
              "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix", "timeout_s",
-             "on_bad_frame"}
+             "on_bad_frame", "optional"}
+NOT_OVERRIDABLE = {"matrix", "name", "optional"}
 DEFAULTS: dict[str, Any] = {"seed": 0, "egomotion": None, "estimator": None, "occlusion": None,
                             "feedback": True, "protocol": {"name": "ltp"},
                             "metrics": {"profile": "default"}, "timeout_s": 60.0, "on_bad_frame": "fail"}
@@ -109,6 +112,8 @@ class RunSpec:
     resolved: dict  # the fully resolved configuration, as written to the manifest
     timeout_s: float | None = 60.0  # limit of one block call (not in the hash: results do not depend on it)
     on_bad_frame: str = "fail"  # or "skip": an unreadable frame is excluded from scoring and counted
+    labels: tuple[str, ...] = ()  # its matrix labels, one per axis
+    optional: bool = False  # skipped (not an error) when its preflight check fails
 
     @property
     def config_hash(self) -> str:
@@ -122,6 +127,31 @@ class Experiment:
     path: Path
     output: Path
     runs: tuple[RunSpec, ...]
+
+
+#: where the experiments shipped with mata-eval are: the wheel's ``mata_eval/experiments`` or,
+#: in a source checkout, ``experiments/`` beside the package
+SHIPPED = (Path(__file__).resolve().parents[1] / "experiments", Path(__file__).resolve().parents[2] / "experiments")
+
+
+def find_experiment(path: str | Path) -> Path:
+    """``path`` when it exists, else the shipped experiment of that file name (``quickstart``,
+    ``experiments/quickstart.yaml`` and ``quickstart.yaml`` all name the one shipped with
+    mata-eval, so the README's commands work from a wheel install outside a clone)."""
+    path = Path(path)
+    if path.exists() or path.is_absolute():
+        return path
+    name = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
+    for folder in SHIPPED:
+        if (folder / name).is_file():
+            return folder / name
+    return path
+
+
+def shipped_experiments() -> list[Path]:
+    """The experiment files shipped with mata-eval."""
+    folder = next((f for f in SHIPPED if f.is_dir()), None)
+    return sorted(folder.glob("*.yaml")) if folder else []
 
 
 class _SafeLoader(yaml.SafeLoader):
@@ -217,8 +247,9 @@ def _check_folder_name(name: str, locate: _Locator, kp: KeyPath) -> None:
 
 
 def load_experiment(path: str | Path, registry: Registry | None = None) -> Experiment:
-    """Read, expand and validate an experiment file."""
-    path = Path(path)
+    """Read, expand and validate an experiment file (a path, or the name of a shipped one:
+    :func:`find_experiment`)."""
+    path = find_experiment(path)
     try:
         size = path.stat().st_size
         if size > MAX_FILE_BYTES:
@@ -226,7 +257,9 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
                                              f"{MAX_FILE_BYTES / 1e6:g} MB (experiment files hold settings, not data)")
         text = path.read_text()
     except OSError as exc:
-        raise ConfigError(str(path), (), f"cannot read experiment file: {exc.strerror}") from None
+        shipped = ", ".join(p.stem for p in shipped_experiments())
+        raise ConfigError(str(path), (), f"cannot read experiment file: {exc.strerror}"
+                          + (f" (experiments shipped with mata-eval: {shipped})" if shipped else "")) from None
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
         _check_expansion(root, path)
@@ -248,12 +281,15 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
         _check_folder_name(str(doc["name"]), locate, ("name",))
     registry = registry or load_registry()
 
-    base = {k: v for k, v in doc.items() if k != "matrix"}
+    base = {k: v for k, v in doc.items() if k not in ("matrix", "optional")}
     origin = {(k,): (k,) for k in base}
+    optional = _optional_labels(doc, locate)
     runs = []
     for label_parts, config, cfg_origin in _expand(doc, base, origin, locate):
         run_name = "-".join(label_parts) if label_parts else str(doc.get("name") or path.stem)
-        runs.append(_resolve(run_name, config, cfg_origin, locate, registry))
+        spec = _resolve(run_name, config, cfg_origin, locate, registry)
+        runs.append(dataclasses.replace(spec, labels=tuple(label_parts),
+                                        optional=bool(optional & set(label_parts))))
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
         raise ConfigError(locate(("matrix",)), ("matrix",), f"matrix labels give duplicate run names: {names}")
@@ -264,6 +300,20 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
     if not out.is_absolute():
         out = Path.cwd() / out
     return Experiment(str(doc.get("name") or path.stem), path, out, tuple(runs))
+
+
+def _optional_labels(doc: dict, locate: _Locator) -> set[str]:
+    """The ``optional:`` list: matrix labels whose runs may be skipped."""
+    value = doc.get("optional") or []
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(locate(("optional",)), ("optional",), f"expected a list of matrix labels, got {value!r}")
+    labels = {str(label) for options in (doc.get("matrix") or {}).values() if isinstance(options, dict)
+              for label in options}
+    unknown = [v for v in value if v not in labels]
+    if unknown:
+        raise ConfigError(locate(("optional",)), ("optional",),
+                          f"{', '.join(map(repr, unknown))} is not a matrix label; labels: {', '.join(sorted(labels)) or '(none)'}")
+    return set(value)
 
 
 def _expand(doc: dict, base: dict, origin: dict, locate: _Locator):
@@ -298,7 +348,7 @@ def _expand(doc: dict, base: dict, origin: dict, locate: _Locator):
                 overrides = value
                 src = {k: kp + (k,) for k in value}
             for key, val in overrides.items():
-                if key not in TOP_LEVEL - {"matrix", "name"}:
+                if key not in TOP_LEVEL - NOT_OVERRIDABLE:
                     raise ConfigError(locate(src[key]), src[key], f"cannot override {key!r} in a matrix")
                 _apply(config, cfg_origin, key, val, src[key])
         yield [label for _, label, _ in combo], config, cfg_origin

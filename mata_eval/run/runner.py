@@ -156,11 +156,13 @@ def run_experiment(
     jobs: int | None = None,
     force: bool = False,
     only: list[str] | None = None,
+    sequences: list[str] | None = None,
     progress: bool = True,
     log: Callable[[str], None] = print,
     executor: Executor | None = None,
 ) -> list[SequenceOutcome]:
-    """Run every selected run of ``exp`` over its dataset. Returns one outcome per sequence.
+    """Run every selected run of ``exp`` (``only``: run names) over its dataset (``sequences``:
+    only these sequence names). Returns one outcome per sequence.
 
     The pending (run, sequence) pairs become tasks, one per sequence with every run that reads
     it (each frame decoded once for all, :mod:`mata_eval.run.tasks`), longest first, on
@@ -173,6 +175,11 @@ def run_experiment(
     specs = select_runs(exp, only)
     if jobs is not None and jobs < 1:
         raise UserError(f"jobs: expected 1 or more worker processes, got {jobs}")
+    if sequences and specs:
+        known_seqs = {s.name for spec in specs for s in load_sequences(spec)}
+        if set(sequences) - known_seqs:
+            raise UserError(f"unknown sequence name(s) {', '.join(sorted(set(sequences) - known_seqs))} in "
+                            f"--sequences; the sequences are: {', '.join(sorted(known_seqs))}")
     outcomes: list[SequenceOutcome] = []
     with contextlib.ExitStack() as locks, stop_on_signals():
         for spec in specs:
@@ -201,6 +208,8 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], jobs: int | None, force: 
             log(f"warning: {spec.name}: {message}")
         out = prepare_run_dir(exp, spec, force, notes)
         for i, seq in enumerate(load_sequences(spec)):
+            if sequences and seq.name not in sequences:
+                continue
             if force:
                 results.clear_sequence(out, seq.name)
             if results.is_finished(out, seq.name):

@@ -45,20 +45,43 @@ def open_onnx(path: str | Path, backend: Backend = "onnxruntime", device: Device
     raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
 
 
-def _onnxruntime(path: Path, device: Device, threads: int) -> Runner:
+def check_backend(backend: Backend, device: Device = "cpu") -> None:
+    """Raise :class:`BackendUnavailable` (one line: what is missing, what to install) when
+    ``backend`` cannot run on ``device`` here; cheap: no model is opened (preflight)."""
+    if backend == "onnxruntime":
+        _ort_providers(device)
+    elif backend == "tensorrt":
+        try:
+            import tensorrt  # noqa: F401
+        except ImportError:
+            raise BackendUnavailable("TensorRT is not installed (on a Jetson it comes with JetPack: "
+                                     "python3 -c 'import tensorrt')") from None
+    else:
+        raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
+
+
+def _ort_providers(device: Device) -> list[str]:
     try:
         import onnxruntime as ort
     except ImportError:
-        raise BackendUnavailable("onnxruntime is not installed: pip install 'mata-eval[onnx]'") from None
+        raise BackendUnavailable("onnxruntime is not installed (a dependency of mata-eval): "
+                                 "pip install onnxruntime") from None
     available = ort.get_available_providers()
     wanted = _ORT_PROVIDERS[device]
     if wanted[0] not in available:
         raise BackendUnavailable(f"device {device!r} needs {wanted[0]}, but this onnxruntime offers only "
                                  f"{', '.join(available)}")
+    return [p for p in wanted if p in available]
+
+
+def _onnxruntime(path: Path, device: Device, threads: int) -> Runner:
+    import onnxruntime as ort
+
+    providers = _ort_providers(device)
     options = ort.SessionOptions()
     if threads:
         options.intra_op_num_threads = threads
-    session = ort.InferenceSession(str(path), options, providers=[p for p in wanted if p in available])
+    session = ort.InferenceSession(str(path), options, providers=providers)
     names = [o.name for o in session.get_outputs()]
 
     def run(feeds: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

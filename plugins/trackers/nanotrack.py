@@ -209,6 +209,19 @@ class NanoTrack:
         self._grid_y = self._grid_x.T.copy()
         self._pos: np.ndarray | None = None
 
+    def check(self) -> None:
+        """Preflight: the model files were found (``__init__``); the backend can run here."""
+        from .backends import BackendUnavailable, check_backend
+
+        if self.params.backend == "torch":
+            try:
+                import torch  # noqa: F401
+            except ImportError:
+                raise BackendUnavailable("the torch backend needs torch: pip install 'mata-eval[torch]'") from None
+            return
+
+        check_backend(self.params.backend, self.params.device)
+
     def _networks(self):
         if self._nets is None and self.params.backend == "torch":
             from .nanotrack_torch import torch_runners

@@ -105,6 +105,12 @@ class VitTrack:
         self._hann = np.outer(hann_centered(_FEAT), hann_centered(_FEAT))
         self._box: np.ndarray | None = None
 
+    def check(self) -> None:
+        """Preflight: the model file was found (``__init__``); the backend can run here."""
+        from .backends import check_backend
+
+        check_backend(self.params.backend, self.params.device)
+
     def _net(self):
         if self._run is None:
             from .backends import open_onnx

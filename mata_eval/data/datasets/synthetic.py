@@ -70,27 +70,45 @@ class SyntheticDataset:
         key = json.dumps({**self.generation, "version": GENERATOR_VERSION}, sort_keys=True)
         return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
 
-    def ensure(self) -> Path:
-        """Generate the suite at :attr:`root` unless a complete one is there; returns the root."""
-        from ..synth import read_suite_info, write_suite
+    def check(self) -> None:
+        """Preflight: a suite already at :attr:`root` matches the asked parameters (a missing one
+        is generated on first use, so nothing else can be wrong before the run)."""
+        from ..synth import read_suite_info
 
         root = self.root
-        info = read_suite_info(root)
-        if info is None:
-            try:
-                write_suite(root, **self.generation, jobs=self.params.jobs)
-            except FileExistsError:
-                info = read_suite_info(root)  # another process finished first: use its suite
-                if info is None:
-                    raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; "
-                                       "choose another root") from None
-            info = read_suite_info(root)
+        if root.exists() and read_suite_info(root) is None and any(root.iterdir()):
+            raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; choose another root")
+        self._check_suite(root, read_suite_info(root))
+
+    def _check_suite(self, root: Path, info: dict | None) -> None:
         suite = (info or {}).get("suite")
         if suite is not None and suite != self.generation:
             diff = ", ".join(f"{k}={suite.get(k)!r} (asked {v!r})" for k, v in self.generation.items()
                              if suite.get(k) != v)
             raise DatasetError(f"dataset synthetic: {root} holds a suite generated with other parameters: {diff}; "
                                "use another root or the matching parameters")
+
+    def ensure(self) -> Path:
+        """Generate the suite at :attr:`root` unless a complete one is there; returns the root."""
+        import sys
+
+        from ..synth import read_suite_info, write_suite
+
+        root = self.root
+        info = read_suite_info(root)
+        if info is None:
+            g = self.generation
+            print(f"generating the synthetic suite ({g['n_sequences']} sequences x {g['n_frames']} frames, "
+                  f"{g['width']}x{g['height']}) into {root} (first use only)", file=sys.stderr, flush=True)
+            try:
+                write_suite(root, **g, jobs=self.params.jobs, progress=True)
+            except FileExistsError:
+                info = read_suite_info(root)  # another process finished first: use its suite
+                if info is None:
+                    raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; "
+                                       "choose another root") from None
+            info = read_suite_info(root)
+        self._check_suite(root, info)
         return root
 
     def sequences(self) -> list[Sequence]:

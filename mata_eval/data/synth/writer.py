@@ -152,6 +152,8 @@ def _write_group(tasks: list) -> list[RenderedSequence]:
 def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
     """Run tasks in a process pool of ``jobs`` (spawned workers), results in task order. Tasks
     sharing a ground texture go to the same worker, which generates that ground once."""
+    from tqdm import tqdm
+
     groups: dict[int, list[int]] = {}
     for i, t in enumerate(tasks):
         groups.setdefault(t[0].texture_seed, []).append(i)
@@ -160,23 +162,22 @@ def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
 
     if mp.current_process().daemon:  # a daemonic pool worker may not start processes
         jobs = 1
-    if jobs <= 1 or len(groups) == 1:
-        for idx in groups.values():
-            for i in idx:
-                out[i] = fn(tasks[i])
-                if progress:
-                    print(f"  {tasks[i][0].name}", flush=True)
-        return out
-    from concurrent.futures import ProcessPoolExecutor
+    with tqdm(total=len(tasks), desc="synthetic suite", unit="seq", disable=not progress) as bar:
+        if jobs <= 1 or len(groups) == 1:
+            for idx in groups.values():
+                for i in idx:
+                    out[i] = fn(tasks[i])
+                    bar.update()
+            return out
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
-        futures = [(idx, ex.submit(runner, [tasks[i] for i in idx])) for idx in groups.values()]
-        for idx, fut in futures:
-            for i, r in zip(idx, fut.result()):
-                out[i] = r
-                if progress:
-                    print(f"  {tasks[i][0].name}", flush=True)
+        runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
+            futures = {ex.submit(runner, [tasks[i] for i in idx]): idx for idx in groups.values()}
+            for fut in as_completed(futures):
+                for i, r in zip(futures[fut], fut.result()):
+                    out[i] = r
+                bar.update(len(futures[fut]))
     return out
 
 

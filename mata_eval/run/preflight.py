@@ -1,0 +1,141 @@
+"""Preflight: what an experiment needs, checked before anything runs (``mata-eval validate``,
+and ``mata-eval run`` before its first sequence): dataset roots, sequences and their frames,
+model files, inference backends, and each plugin's own optional ``check()``.
+
+Each distinct plugin block is checked once, however many runs share it; every problem is one
+line naming the block, the runs it stops and what to do. Runs marked ``optional`` in the
+experiment file (their matrix label is listed under ``optional:``) are skipped instead."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+from ..data.datasets.annotations import MissingFrames
+from .config import Experiment, PluginBlock, RunSpec
+
+BLOCK_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")
+
+
+@dataclass(frozen=True)
+class Problem:
+    """Something that stops runs: the block (``"tracker vittrack"``), the runs it stops and a
+    one-line message saying what is wrong and what to do."""
+
+    block: str
+    runs: tuple[str, ...]
+    message: str
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The runs that can go, the optional runs skipped (with the problem that skips them), and
+    the problems that stop the experiment (one line each)."""
+
+    runs: tuple[RunSpec, ...]
+    skipped: tuple[tuple[RunSpec, Problem], ...]
+    problems: tuple[str, ...]
+
+
+def _one_line(exc: BaseException) -> str:
+    lines = str(exc).strip().splitlines()
+    return lines[0] if lines else type(exc).__name__
+
+
+def check_dataset(block: PluginBlock) -> str | None:
+    """The dataset's sequences load (annotations) and each has its frames on disk. A dataset
+    plugin may instead provide ``check()`` (the synthetic suite: generated on first use)."""
+    try:
+        dataset = block.create()
+        if hasattr(dataset, "check"):
+            dataset.check()
+            return None
+        sequences = dataset.sequences()
+    except Exception as exc:  # any failure is the problem to report
+        return _one_line(exc)
+    if not sequences:
+        return "no sequences found"
+    bad = [s.name for s in sequences if isinstance(s.loader, MissingFrames)
+           or (s.loader is None and not (s.frame_paths and os.path.isfile(s.frame_paths[0])
+                                         and os.path.isfile(s.frame_paths[-1])))]
+    if bad:
+        shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        where = next((s.loader.looked_in for s in sequences if isinstance(s.loader, MissingFrames)), None)
+        hint = f" (looked in {' or '.join(where)})" if where else ""
+        return f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}"
+    return None
+
+
+def check_block(block: PluginBlock) -> str | None:
+    """The plugin can be built here (model files found) and its optional ``check()`` passes
+    (e.g. an ONNX tracker opens its model with the chosen backend)."""
+    try:
+        obj = block.create()
+        if hasattr(obj, "check"):
+            obj.check()
+    except Exception as exc:  # any failure is the problem to report
+        return _one_line(exc)
+    return None
+
+
+def find_problems(runs: Iterable[RunSpec]) -> list[Problem]:
+    """Every problem of ``runs``, each distinct plugin block checked once."""
+    checked: dict[tuple[str, str], tuple[str | None, list[str]]] = {}
+    for spec in runs:
+        for key in BLOCK_KEYS:
+            block: Any = getattr(spec, key)
+            if block is None:
+                continue
+            ident = (f"{key} {block.name}", json.dumps(spec.resolved[key], sort_keys=True, default=str))
+            if ident not in checked:
+                checked[ident] = (check_dataset(block) if key == "dataset" else check_block(block), [])
+            checked[ident][1].append(spec.name)
+    return [Problem(what, tuple(names), message)
+            for (what, _), (message, names) in checked.items() if message is not None]
+
+
+def _runs_text(names: tuple[str, ...], n_all: int) -> str:
+    if len(names) == n_all:
+        return "all runs" if n_all > 1 else "the run"
+    shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+    return f"run{'s' if len(names) > 1 else ''} {shown}"
+
+
+def plan(exp: Experiment, only: Iterable[str] | None = None) -> Plan:
+    """Check the selected runs (``only``: run names; default all) and sort them into runs to do,
+    optional runs to skip, and problems that stop the experiment."""
+    only = list(only or [])
+    known = {r.name for r in exp.runs}
+    unknown = [n for n in only if n not in known]
+    if unknown:
+        return Plan((), (), (f"--runs: unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
+    specs = [r for r in exp.runs if not only or r.name in only]
+    problems = find_problems(specs)
+    by_name = {r.name: r for r in specs}
+    skipped: dict[str, Problem] = {}
+    stopping = []
+    for p in problems:
+        if all(by_name[n].optional for n in p.runs):
+            for n in p.runs:
+                skipped.setdefault(n, p)
+        else:
+            stopping.append(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}")
+    return Plan(tuple(r for r in specs if r.name not in skipped),
+                tuple((by_name[n], p) for n, p in skipped.items()), tuple(stopping))
+
+
+def skipped_lines(skipped: Iterable[tuple[RunSpec, Problem]]) -> list[str]:
+    """One line per problem that skips optional runs: which runs, and why."""
+    grouped: dict[Problem, list[RunSpec]] = {}
+    for spec, p in skipped:
+        grouped.setdefault(p, []).append(spec)
+    lines = []
+    for p, specs in grouped.items():
+        common = set(specs[0].labels).intersection(*(s.labels for s in specs[1:]))
+        label = next((lab for lab in specs[0].labels if lab in common), None)
+        which = (f"the {len(specs)} '{label}' run{'s' if len(specs) > 1 else ''}" if label
+                 else ", ".join(s.name for s in specs))
+        lines.append(f"skipping {which}: {p.block}: {p.message}")
+    return lines
