@@ -9,7 +9,9 @@ frequencies as scheduled Hz (wall-clock Hz)."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 from typing import Sequence
 
 from ..score.evaluate import RunScores
@@ -18,7 +20,27 @@ from .tables import FORMATS, Table, hz, pct, render
 TABLES = ("overall", "challenges")
 METRIC_LABELS = (("sr", "SR"), ("msr", "MSR"), ("pr", "PR"), ("precision20", "P@20"), ("nt2f", "NT2F"))
 
-__all__ = ["FORMATS", "METRIC_LABELS", "TABLES", "challenges_table", "overall_table", "render_table"]
+#: The legend printed under the overall table, one line per column (paper section 3.3;
+#: docs/metrics.md has the exact definitions and the toolkit profiles).
+LEGEND = (
+    ("Seqs", "sequences scored"),
+    ("SR", "success rate: % of frames whose box overlaps the ground truth with IoU > 0.5"),
+    ("MSR", "mean success rate: mean over the IoU thresholds 0, 0.05, ..., 1 of the % of frames above "
+            "them (area under the success plot, the 'AUC' of OTB/UAV123)"),
+    ("PR", "normalised precision: % of frames whose centre error, divided by the target's width and "
+           "height, is within 0.2"),
+    ("P@20", "precision: % of frames whose centre error is within 20 pixels"),
+    ("NT2F", "normalised time to failure: the first frame where the box stops overlapping the target "
+             "(IoU 0), over the sequence length; 100 = never lost (paper eq. nt2f)"),
+    ("<block> Hz", "e.g. tracker Hz 10.0 (22.5): the protocol ran the block 10 times per second of video "
+                   "(camera clock); in parentheses, 1 / its mean wall time per call on this machine"),
+    ("Excl. frames", "frames left out of every metric because their ground truth is empty or missing "
+                     "(target fully occluded or out of view, or not annotated)"),
+    ("Failed", "sequences that failed to run: <run>/<sequence>.failed.json says why"),
+)
+
+__all__ = ["FORMATS", "LEGEND", "METRIC_LABELS", "TABLES", "challenges_table", "mata_deltas", "overall_table",
+           "render_table"]
 
 
 def _num(v: float) -> str:
@@ -64,16 +86,17 @@ def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
         rows.append(row)
     # unlabelled groups: vertical rules between sequences, metrics, frequencies and counts in LaTeX
     groups = [(g, n) for g, n in (("", 1), ("", len(metric_cols)), ("", len(blocks)), ("", 2)) if n]
+    legend = [f"{c}: {text}" for c, text in LEGEND if c != "<block> Hz" or blocks]
     return Table("overall", "", ["Run"], groups, ["Seqs"] + metric_cols + freq_cols + ["Excl. frames", "Failed"],
-                 rows, stub_align="l")
+                 rows, notes=legend, stub_align="l")
 
 
 def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
     """SR and NT2F per challenge group; the number of sequences of each group in its header,
     except in LaTeX (like the paper)."""
-    groups = _group_names(runs)
     n = {g: max((r.summary.groups[g].n_sequences for r in runs if g in r.summary.groups), default=0)
-         for g in groups}
+         for g in _group_names(runs)}
+    groups = [g for g in n if n[g] > 0]  # a group no sequence belongs to would be a column of "-"
     rows = []
     for r in runs:
         row = [r.name]
@@ -82,8 +105,54 @@ def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
             row += [pct(s.sr), pct(s.nt2f)] if s is not None else ["-", "-"]
         rows.append(row)
     labels = [(f"{g[:1].upper()}{g[1:]}" + ("" if fmt == "latex" else f" ({n[g]})"), 2) for g in groups]
+    note = ("challenge groups: a sequence is in a group when it has one of the group's attributes "
+            "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table")
     return Table("challenges", "", ["Run"], labels, [c for _ in groups for c in ("SR", "NT2F")], rows,
-                 stub_align="l")
+                 notes=[note], stub_align="l")
+
+
+def has_challenges(runs: Sequence[RunScores]) -> bool:
+    """Whether any challenge group has a sequence (else the challenge table is not worth printing)."""
+    return any(s.n_sequences > 0 for r in runs for s in r.summary.groups.values())
+
+
+def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
+    """MATA minus its baseline, in points, for every MATA run whose baseline (the same
+    configuration without ego-motion and estimator) is among ``runs``: the experiment's
+    takeaway per tracker and protocol. Configurations come from each run folder's manifest;
+    None when no run has its baseline here."""
+    from ..run.results import read_manifest
+    from .paper import is_mata, plugin_label, protocol_label
+
+    def key(cfg: dict) -> str:
+        return json.dumps({k: v for k, v in cfg.items() if k not in ("egomotion", "estimator", "feedback")},
+                          sort_keys=True, default=str)
+
+    configs = []
+    for r in runs:
+        manifest = read_manifest(Path(r.path)) if Path(r.path).is_dir() else None
+        if manifest and isinstance(manifest.get("config"), dict):
+            configs.append((r, manifest["config"]))
+    baselines = {}
+    for r, cfg in configs:
+        if cfg.get("egomotion") is None and cfg.get("estimator") is None:
+            baselines.setdefault(key(cfg), r)
+    rows = []
+    for r, cfg in configs:
+        base = baselines.get(key(cfg)) if is_mata(cfg) else None
+        if base is None:
+            continue
+        cells = []
+        for m, _ in METRIC_LABELS:
+            a, b = getattr(r.summary.overall, m), getattr(base.summary.overall, m)
+            cells.append(f"{100.0 * (a - b):+.1f}" if math.isfinite(a) and math.isfinite(b) else "-")
+        rows.append([plugin_label("tracker", cfg.get("tracker")), protocol_label(cfg.get("protocol"))[0],
+                     f"{r.name} - {base.name}"] + cells)
+    if not rows:
+        return None
+    return Table("mata_vs_baseline", "MATA minus its baseline, in points (same tracker, data and protocol; "
+                 "> 0: MATA better)", ["Tracker", "Protocol", "Runs"], [],
+                 [lab for _, lab in METRIC_LABELS], rows, stub_align="l")
 
 
 def _csv_table(runs: Sequence[RunScores], table: str) -> Table:

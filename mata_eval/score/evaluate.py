@@ -37,7 +37,13 @@ SCORES_FORMAT = 1
 @dataclass(frozen=True, eq=False)
 class RunScores:
     """Everything ``scores.json`` holds: per-sequence scores, their aggregates (overall, per
-    attribute, per challenge group), excluded-frame counts, failures and block frequencies."""
+    attribute, per challenge group), excluded-frame counts, failures and block frequencies.
+
+    ``name``: the run (or results folder); ``path``: its folder; ``profile``: the metric profile;
+    ``layout``: the results layout read; ``sequences``: sequence -> scores; ``attributes``:
+    sequence -> attributes; ``summary``: ``overall``, ``attributes`` and challenge ``groups``
+    means; ``failures``: sequence -> reason it failed; ``missing``: sequences without results;
+    ``frequencies``: block -> rates (the table's Hz column); ``meta``: where it came from."""
 
     name: str
     path: str
@@ -50,6 +56,12 @@ class RunScores:
     missing: tuple[str, ...] = ()
     frequencies: dict[str, BlockFrequency] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def overall(self) -> metrics.Summary:
+        """The dataset means: ``sr``, ``msr``, ``pr``, ``precision20``, ``nt2f`` (fractions in
+        [0, 1]), mean curves, frame counts."""
+        return self.summary.overall
 
     def to_dict(self) -> dict:
         return {

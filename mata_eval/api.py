@@ -1,0 +1,82 @@
+"""The Python API: ``mata-eval run`` and ``mata-eval eval`` as two functions.
+
+    import mata_eval as me
+    runs = me.run("experiments/quickstart.yaml")        # one RunScores per run that ran
+    for r in runs:
+        print(r.name, r.overall.sr, r.overall.nt2f)      # fractions in [0, 1]
+    s = me.evaluate("my_results/", dataset="uav123", root="/data/UAV123", profile="pysot-toolkit")
+
+Both return :class:`mata_eval.score.evaluate.RunScores`, a frozen dataclass: ``name``, ``path``
+(the results folder), ``overall`` (a :class:`~mata_eval.score.metrics.Summary`: ``sr``, ``msr``,
+``pr``, ``precision20``, ``nt2f``, the mean curves and frame counts), ``sequences`` (per-sequence
+:class:`~mata_eval.score.metrics.SequenceScores`), ``summary.attributes`` and
+``summary.groups`` (per attribute and challenge group), ``failures`` (sequence -> reason),
+``missing`` (sequences without results) and ``frequencies`` (block rates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Sequence
+
+from .score.evaluate import RunScores
+
+
+class PreflightError(RuntimeError):
+    """The experiment cannot run here (data, model file or backend missing): ``lines`` holds
+    one line per problem; nothing has run."""
+
+    def __init__(self, lines: Sequence[str]):
+        self.lines = tuple(lines)
+        super().__init__("\n".join(self.lines))
+
+
+def run(experiment: str | Path, *, runs: Sequence[str] | None = None, sequences: Sequence[str] | None = None,
+        jobs: int | None = None, force: bool = False, output: str | Path | None = None,
+        progress: bool = True) -> list[RunScores]:
+    """Run an experiment file like ``mata-eval run`` and score it.
+
+    ``experiment``: a YAML path, or the name of a shipped experiment (``"quickstart"``);
+    ``runs``: only these run names of its matrix; ``sequences``: only these sequences; ``jobs``: worker processes (default: the
+    cores); ``force``: redo finished sequences; ``output``: results folder instead of the
+    file's ``output``; ``progress``: progress bar and messages. Optional runs whose model file
+    is missing are skipped (with a message). Raises :class:`PreflightError` when anything else
+    is missing, before any sequence runs; :class:`~mata_eval.core.errors.ConfigError` for a bad
+    experiment file. Returns one :class:`RunScores` per run that ran, in the file's order."""
+    from .run.config import load_experiment
+    from .run.preflight import plan, skipped_lines
+    from .run.runner import run_experiment
+    from .score.evaluate import evaluate_experiment
+
+    exp = load_experiment(experiment)
+    if output is not None:
+        exp = dataclasses.replace(exp, output=Path(output).resolve())
+    checked = plan(exp, runs)
+    if checked.problems:
+        raise PreflightError(checked.problems)
+    log = print if progress else (lambda _msg: None)
+    for line in skipped_lines(checked.skipped):
+        log(line)
+    names = [r.name for r in checked.runs]
+    run_experiment(exp, jobs=jobs, force=force, only=names, sequences=list(sequences or []) or None,
+                   progress=progress, log=log)
+    return evaluate_experiment(exp, only=names)
+
+
+def evaluate(folder: str | Path, dataset: str, root: str | Path | None = None, *, profile: str = "default",
+             layout: str = "auto", **dataset_params: Any) -> RunScores:
+    """Score a results folder (mata-eval run folder, pysot, got10k or pytracking layout; see
+    ``mata-eval eval``) against a dataset's annotations; no file is written.
+
+    ``dataset``: a dataset plugin name (``mata-eval list``); ``root``: its folder; more of its
+    parameters as keywords (``sequences=[...]``, ``fps=30``); ``profile``: the metric profile
+    (``default``, ``pysot-toolkit``, ``got10k``, ...)."""
+    from .core.params import build_params
+    from .core.registry import load_registry
+    from .score.evaluate import evaluate_results
+
+    cls = load_registry().get("dataset", dataset).cls
+    values = {**dataset_params, **({} if root is None else {"root": str(root)})}
+    sequences = cls(build_params(cls.Params, values, ("dataset",))).sequences()
+    return evaluate_results(Path(folder), sequences, profile=profile, layout=layout)

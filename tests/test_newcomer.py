@@ -1,0 +1,175 @@
+"""A newcomer's first commands: preflight stops an experiment that cannot run before anything
+runs (one line per problem), optional runs are skipped with a line, results explain themselves
+(legend, MATA minus baseline, no empty challenge table), and the Python API returns the scores
+that the run folders hold."""
+
+from __future__ import annotations
+
+import textwrap
+
+import cv2
+import numpy as np
+import pytest
+
+import mata_eval as me
+from mata_eval.cli import main
+from mata_eval.core.errors import ConfigError
+from mata_eval.report.overview import LEGEND, has_challenges, mata_deltas, overall_table, render_table
+from mata_eval.run.config import load_experiment
+from mata_eval.run.preflight import plan, skipped_lines
+
+
+def _folder_dataset(root, n=12, size=(160, 120), frames=True):
+    """One sequence 'square': a bright square moving 2 px right per frame on a textured ground."""
+    seq = root / "square"
+    (seq / "img").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    ground = cv2.GaussianBlur(rng.integers(0, 255, (size[1], size[0], 3), dtype=np.uint8), (5, 5), 0)
+    gt = []
+    for k in range(n):
+        img = ground.copy()
+        x, y = 40 + 2 * k, 40
+        img[y:y + 20, x:x + 20] = (250, 250, 250)
+        if frames:
+            cv2.imwrite(str(seq / "img" / f"{k + 1:04d}.jpg"), img)
+        gt.append(f"{x},{y},20,20")
+    (seq / "groundtruth_rect.txt").write_text("\n".join(gt) + "\n")
+    return root
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "exp.yaml"
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_preflight_prints_one_line_per_problem_and_runs_nothing(tmp_path, capsys):
+    exp = _write(tmp_path, f"""
+        output: {tmp_path / 'out'}
+        dataset: {{name: folder, root: {tmp_path / 'nowhere'}}}
+        tracker: {{name: vittrack, model: {tmp_path / 'missing.onnx'}}}
+        matrix:
+          protocol:
+            ltp: {{name: ltp}}
+            eop10: {{name: eop, tracker_hz: 10}}
+        """)
+    assert main(["validate", str(exp)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2
+    assert err[0].startswith("error: dataset folder (all runs): ") and "nowhere" in err[0]
+    assert err[1].startswith("error: tracker vittrack (all runs): ") and "missing.onnx" in err[1]
+    assert main(["run", str(exp)]) == 2
+    assert not (tmp_path / "out").exists()  # stopped before the first run folder
+
+
+def test_preflight_finds_sequences_without_frames(tmp_path):
+    root = _folder_dataset(tmp_path / "data", frames=False)
+    exp = load_experiment(_write(tmp_path, f"""
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        """))
+    (problem,) = plan(exp).problems
+    assert "1 of 1 sequences have no frames: square" in problem and str(root / "square" / "img") in problem
+
+
+def test_optional_runs_are_skipped_with_a_line(tmp_path):
+    root = _folder_dataset(tmp_path / "data")
+    exp = load_experiment(_write(tmp_path, f"""
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        matrix:
+          tracker:
+            kcf: {{name: kcf}}
+            vit: {{name: vittrack, model: {tmp_path / 'missing.onnx'}}}
+          protocol:
+            ltp: {{name: ltp}}
+            eop10: {{name: eop, tracker_hz: 10}}
+        optional: [vit]
+        """))
+    checked = plan(exp)
+    assert not checked.problems
+    assert [r.name for r in checked.runs] == ["kcf-ltp", "kcf-eop10"]
+    (line,) = skipped_lines(checked.skipped)
+    assert line.startswith("skipping the 2 'vit' runs: tracker vittrack: ") and "missing.onnx" in line
+
+
+def test_optional_names_matrix_labels(tmp_path):
+    path = _write(tmp_path, """
+        dataset: {name: synthetic}
+        tracker: {name: kcf}
+        matrix:
+          protocol: {ltp: {name: ltp}}
+        optional: [vittrack]
+        """)
+    with pytest.raises(ConfigError, match=r"exp.yaml:6: optional: 'vittrack' is not a matrix label; labels: ltp"):
+        load_experiment(path)
+
+
+@pytest.fixture(scope="module")
+def mata_and_baseline(tmp_path_factory):
+    """A real run of kcf alone and in MATA (LTP) through the Python API."""
+    tmp = tmp_path_factory.mktemp("api")
+    root = _folder_dataset(tmp / "data")
+    exp = _write(tmp, f"""
+        output: {tmp / 'out'}
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        egomotion: {{name: grid_lk}}
+        estimator: {{name: homography_ekf}}
+        matrix:
+          mata:
+            baseline: {{egomotion: null, estimator: null}}
+            mata: {{}}
+        """)
+    return root, tmp / "out", me.run(exp, jobs=1, progress=False)
+
+
+def test_api_run_returns_the_scores_of_each_run(mata_and_baseline):
+    root, out, runs = mata_and_baseline
+    assert [r.name for r in runs] == ["baseline", "mata"]
+    for r in runs:
+        assert r.path == str(out / r.name) and not r.failures and list(r.sequences) == ["square"]
+        assert 0.0 <= r.overall.sr <= 1.0 and r.overall.n_frames == 12
+    again = me.evaluate(out / "baseline", dataset="folder", root=root)
+    assert again.overall.sr == runs[0].overall.sr and again.overall.nt2f == runs[0].overall.nt2f
+
+
+def test_mata_minus_baseline_pairs_runs_and_subtracts(mata_and_baseline):
+    _, _, (base, mata) = mata_and_baseline
+    t = mata_deltas([base, mata])
+    (row,) = t.rows
+    assert row[:3] == ["KCF", "LTP", "mata - baseline"]
+    expect = [100 * (getattr(mata.overall, m) - getattr(base.overall, m))
+              for m in ("sr", "msr", "pr", "precision20", "nt2f")]
+    assert [float(v) for v in row[3:]] == pytest.approx(expect, abs=0.051)
+    assert mata_deltas([base]) is None and mata_deltas([mata]) is None
+
+
+def test_table_legend_explains_every_column(mata_and_baseline):
+    _, _, runs = mata_and_baseline
+    t = overall_table(runs)
+    explained = {n.split(":", 1)[0] for n in t.notes}
+    for col in t.columns:
+        assert (col if not col.endswith(" Hz") else "<block> Hz") in explained, col
+    text = render_table(runs, "terminal")
+    assert "(camera clock); in parentheses, 1 / its mean wall time per call" in text
+    assert len(t.notes) == len(LEGEND)
+
+
+def test_no_challenge_table_without_challenge_sequences(mata_and_baseline):
+    _, _, runs = mata_and_baseline
+    assert all(g.n_sequences == 0 for r in runs for g in r.summary.groups.values())
+    assert not has_challenges(runs)
+    assert "(0)" not in render_table(runs, "terminal", table="challenges")
+
+
+def test_import_is_light_and_run_is_callable():
+    import subprocess
+    import sys
+
+    code = "import sys, mata_eval as me; print(callable(me.run), 'numpy' in sys.modules, 'cv2' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "False", "False"]
+    import mata_eval.run.config  # noqa: F401  (importing the package's modules keeps me.run callable)
+
+    assert callable(me.run)
