@@ -86,7 +86,7 @@ def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
         rows.append(row)
     # unlabelled groups: vertical rules between sequences, metrics, frequencies and counts in LaTeX
     groups = [(g, n) for g, n in (("", 1), ("", len(metric_cols)), ("", len(blocks)), ("", 2)) if n]
-    legend = [f"{c}: {text}" for c, text in LEGEND if c != "<block> Hz" or blocks]
+    legend = [f"{c}: {text}" for c, text in LEGEND if c != "<block> Hz" or blocks] if fmt != "latex" else []
     return Table("overall", "", ["Run"], groups, ["Seqs"] + metric_cols + freq_cols + ["Excl. frames", "Failed"],
                  rows, notes=legend, stub_align="l")
 
@@ -108,7 +108,7 @@ def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
     note = ("challenge groups: a sequence is in a group when it has one of the group's attributes "
             "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table")
     return Table("challenges", "", ["Run"], labels, [c for _ in groups for c in ("SR", "NT2F")], rows,
-                 notes=[note], stub_align="l")
+                 notes=[note] if fmt != "latex" else [], stub_align="l")
 
 
 def has_challenges(runs: Sequence[RunScores]) -> bool:
