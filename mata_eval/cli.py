@@ -14,6 +14,8 @@ from typing import Any, Mapping, Sequence
 from . import __version__
 from .core.errors import ConfigError, Interrupted, UserError
 
+#: frames a timeline shows by default: about 2 s at 30 fps, labels readable on a screen
+TIMELINE_WINDOW = 60
 #: file extension of each table format written by ``mata-eval report --out``
 EXTENSIONS = {"terminal": "txt", "markdown": "md", "csv": "csv", "latex": "tex"}
 
@@ -251,15 +253,20 @@ def cmd_report(args: argparse.Namespace) -> int:
         if not args.paper:
             args.paper = "auto"
         return cmd_paper(args)
+    if not args.run_dirs:
+        print("error: give run folders (or --experiment EXP.yaml)", file=sys.stderr)
+        return 2
+    return _report_runs(args.run_dirs, args)
+
+
+def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
+    """The run tables (and, with ``--out``, their files and plots) of ``run_dirs``."""
     from .report.overview import FORMATS, TABLES, render_table
     from .report.plots import plot_curves
     from .score.evaluate import ScoresUnavailable, scores_for
 
-    if not args.run_dirs:
-        print("error: give run folders (or --experiment EXP.yaml with --paper)", file=sys.stderr)
-        return 2
     runs = []
-    for d in args.run_dirs:
+    for d in run_dirs:
         try:
             runs.append(scores_for(Path(d)))
         except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
@@ -298,17 +305,22 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
     try:
         plan: list[tuple[str, list[str]]] = []
+        generic: list[str] = []  # run folders of experiments that are not one of the paper's tables
         for exp_file in args.experiment or []:
             name, dirs = experiment_runs(exp_file)
             kind = name if args.paper == "auto" else args.paper
-            if kind not in PAPER_TABLES:
-                raise ValueError(f"{exp_file}: experiment {name!r} is not one of the paper's tables "
-                                 f"({', '.join(PAPER_TABLES)}); choose one with --paper")
-            plan.append((kind, dirs))
+            if kind in PAPER_TABLES:
+                plan.append((kind, dirs))
+            elif args.paper == "auto":
+                generic += dirs
+            else:
+                raise ValueError(f"--paper {kind}: expected one of {', '.join(PAPER_TABLES)}")
         if args.run_dirs:
             if args.paper == "auto":
                 raise ValueError("--paper auto needs --experiment files; name the table for run folders")
             plan.append((args.paper, list(args.run_dirs)))
+        if not plan and generic:
+            return _report_runs(generic, args)
         if not plan:
             raise ValueError("no runs: give run folders or --experiment files")
         sections = [(kind, load_runs(dirs)) for kind, dirs in plan]
@@ -322,6 +334,8 @@ def cmd_paper(args: argparse.Namespace) -> int:
     if args.out:
         for p in write_paper_report(sections, Path(args.out), plots=not args.no_plots):
             print(f"wrote {p}")
+    if generic:
+        return _report_runs(generic, args)
     return 0
 
 
@@ -419,8 +433,25 @@ def cmd_timeline(args: argparse.Namespace) -> int:
             print(f"mata-eval timeline: {path}: {exc}", file=sys.stderr)
             return 2
     out = Path(args.out) if args.out else run_dir / f"{args.seq}.timeline.png"
-    plot_timeline(traces, out, frames=args.frames, title=args.seq)
+    frames = args.frames
+    n_frames = max(e.frame for rows in traces.values() for e in rows) + 1
+    if frames is None and n_frames > TIMELINE_WINDOW:
+        frames = (0, TIMELINE_WINDOW)
+        print(f"frames 0:{TIMELINE_WINDOW} of {n_frames} (--frames A:B for another window)")
+    plot_timeline(traces, out, frames=frames, title=args.seq)
     print(out)
+    return 0
+
+
+def cmd_play(args: argparse.Namespace) -> int:
+    from .report.playback import play
+
+    try:
+        out, n = play(args.run_dirs, args.sequence, args.out, frames=args.frames, sheet=args.sheet)
+    except (FileNotFoundError, ValueError, OSError, KeyError) as exc:
+        print(f"mata-eval play: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    print(f"{out}: {n} frames" + (" in a contact sheet" if args.sheet else ""))
     return 0
 
 
@@ -607,10 +638,27 @@ def _add_timeline(subparsers) -> None:
     p.add_argument("seq", metavar="SEQ", help="sequence name")
     p.add_argument("--out", help="image file to write (default: RUN_DIR/SEQ.timeline.png)")
     p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
-                   help="frame range to draw, half-open (default: all; long sequences read best with ~60 frames)")
+                   help="frame range to draw, half-open (default: the first 60 frames)")
     p.add_argument("--compare", nargs="+", metavar="RUN_DIR",
                    help="more run folders (e.g. other protocols) drawn as panels below, like the paper's figure")
     p.set_defaults(func=cmd_timeline)
+
+
+def _add_play(subparsers) -> None:
+    p = subparsers.add_parser(
+        "play", help="draw runs on a sequence's frames: a video (or a PNG contact sheet)",
+        description="Draw one sequence of one or more runs on its frames: the ground truth (green), each run's "
+                    "scored box in its plot colour (MATA's estimate for a MATA run; the tracker's own box thin), "
+                    "the tracker's search region (dashed), occluders (white) and which blocks published at each "
+                    "frame. The frames are rebuilt from the first run's dataset and occlusion settings.")
+    p.add_argument("run_dirs", nargs="+", metavar="RUN_DIR", help="run folders (same dataset)")
+    p.add_argument("--sequence", required=True, help="sequence name")
+    p.add_argument("--out", required=True, help="video file (.mp4 or .avi), or image file (.png) with --sheet")
+    p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
+                   help="frame range, half-open (default: the whole sequence)")
+    p.add_argument("--sheet", type=int, nargs="?", const=9, default=0, metavar="N",
+                   help="a PNG contact sheet of N frames spread over the range instead of a video (default N: 9)")
+    p.set_defaults(func=cmd_play)
 
 
 def _add_profile(subparsers) -> None:
@@ -714,6 +762,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report(sub)
     _add_augment(sub)
     _add_timeline(sub)
+    _add_play(sub)
     _add_profile(sub)
     _add_export(sub)
     return parser

@@ -173,3 +173,21 @@ def test_import_is_light_and_run_is_callable():
     import mata_eval.run.config  # noqa: F401  (importing the package's modules keeps me.run callable)
 
     assert callable(me.run)
+
+
+def test_docs_name_only_files_a_clone_has():
+    """Every repository path a doc names in backquotes exists, and no doc sends the reader to
+    the project's specification notes, which a clone does not have."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    tops = ("mata_eval/", "plugins/", "docs/", "experiments/", "tests/", "benchmarks/", ".ci/")
+    for doc in [root / "README.md", *sorted((root / "docs").rglob("*.md"))]:
+        text = doc.read_text()
+        for m in re.finditer(r"`([^`\s]+)`", text):
+            token = m.group(1).rstrip(".,:;)")
+            if token.startswith(tops) and not any(c in token for c in "*<>{}$"):
+                assert (root / token.split(":")[0]).exists(), f"{doc.name} names {token}, which a clone has not"
+        for note in ("DESIGN.md", "MODELS.md", "EVAL_TOOLKITS.md", "mata-paper.tex"):
+            assert note not in text, f"{doc.name} names {note}, which a clone has not"

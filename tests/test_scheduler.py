@@ -319,12 +319,14 @@ def test_csv_rows():
     run = run_sequence(make_sequence(7), FrameTracker(), FrameEgoMotion(), LogEstimator(),
                        EOP(EOP.Params(tracker_hz=10.0)), np.random.default_rng(0))
     lines = run.frames_csv().splitlines()
-    assert lines[0] == "frame,scored,confidence,tracker_ms,egomotion_ms,estimator_ms,source_frame"
+    assert lines[0] == ("frame,scored,confidence,tracker_ms,egomotion_ms,estimator_ms,source_frame,"
+                        "tracker_x,tracker_y,tracker_w,tracker_h,search_x,search_y,search_w,search_h")
     assert len(lines) == 8
     row3 = lines[4].split(",")
     assert row3[0] == "3" and row3[1] == "1" and row3[2] == "nan" and row3[3] != "nan"
-    assert lines[2].split(",")[3] == "nan"  # no tracker call started at frame 1
-    assert lines[7].split(",")[-1] == "6"  # the estimator output of frame 6 (computed at frame 6)
+    assert "nan" not in row3[7:11] and row3[11:] == ["nan"] * 4  # its box; no search region reported
+    assert lines[2].split(",")[3] == "nan" and lines[2].split(",")[7] == "nan"  # no tracker call at frame 1
+    assert lines[7].split(",")[6] == "6"  # the estimator output of frame 6 (computed at frame 6)
     assert read_trace_csv(run.trace_csv()) == list(run.trace)
     assert run.trace_csv().splitlines()[0] == "block,event,frame,t"
     assert ("tracker", "start", 3, pytest.approx(0.1)) == run.trace_rows()[

@@ -24,6 +24,16 @@ def nt2f_survival(values: Sequence[float], grid: np.ndarray) -> np.ndarray:
     return (v[None, :] > np.minimum(g, np.nextafter(1.0, 0.0))[:, None]).mean(axis=1)
 
 
+def run_colour(i: int) -> tuple[float, float, float]:
+    """RGB colour of the ``i``-th run of a report: matplotlib's tab10 cycle without its green,
+    which is the ground truth's in ``mata-eval play``. Every plot of a report, and the playback
+    video, gives run ``i`` this colour whatever the order of its legend."""
+    from matplotlib import colormaps
+
+    cycle = [c for j, c in enumerate(colormaps["tab10"].colors) if j != 2]
+    return tuple(cycle[i % len(cycle)])
+
+
 def _figure():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -47,10 +57,12 @@ def _finish(fig, ax, title: str, xlabel: str, ylabel: str, path: Path) -> Path:
 
 def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     """Write ``success.png``, ``precision.png``, ``norm_precision.png`` and ``nt2f.png`` into
-    ``out_dir``; legends carry MSR, P@20, PR and mean NT2F, runs sorted best first."""
+    ``out_dir``; legends carry MSR, P@20, PR and mean NT2F, runs sorted best first; run ``i``
+    has :func:`run_colour` ``(i)`` in every plot."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     runs = list(runs)
+    colour = {id(r): run_colour(i) for i, r in enumerate(runs)}  # by position: the same in every plot
     paths = []
 
     def by(metric: str) -> list[RunScores]:
@@ -60,14 +72,14 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     iou_x = np.linspace(0.0, 1.0, 21)
     for r in by("msr"):
         s: Summary = r.summary.overall
-        ax.plot(iou_x, s.success_curve, label=f"{r.name} [{pct(s.msr)}]")
+        ax.plot(iou_x, s.success_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.msr)}]")
     ax.set_xlim(0, 1)
     paths.append(_finish(fig, ax, "Success plot (MSR)", "IoU threshold", "Success rate", out / "success.png"))
 
     fig, ax = _figure()
     for r in by("precision20"):
         s = r.summary.overall
-        ax.plot(PIXEL_GRID, s.precision_curve, label=f"{r.name} [{pct(s.precision20)}]")
+        ax.plot(PIXEL_GRID, s.precision_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.precision20)}]")
     ax.set_xlim(0, 50)
     paths.append(_finish(fig, ax, "Precision plot (P@20)", "Centre error threshold (px)", "Precision",
                          out / "precision.png"))
@@ -75,7 +87,7 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     fig, ax = _figure()
     for r in by("pr"):
         s = r.summary.overall
-        ax.plot(NORM_GRID, s.norm_precision_curve, label=f"{r.name} [{pct(s.pr)}]")
+        ax.plot(NORM_GRID, s.norm_precision_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.pr)}]")
     ax.set_xlim(0, 0.5)
     paths.append(_finish(fig, ax, "Normalised precision plot (PR)", "Normalised centre error threshold",
                          "Precision", out / "norm_precision.png"))
@@ -84,7 +96,7 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     grid = np.linspace(0.0, 1.0, 201)
     for r in by("nt2f"):
         surv = nt2f_survival([s.nt2f for s in r.sequences.values()], grid)
-        ax.step(grid, surv, where="post", label=f"{r.name} [{pct(r.summary.overall.nt2f)}]")
+        ax.step(grid, surv, where="post", color=colour[id(r)], label=f"{r.name} [{pct(r.summary.overall.nt2f)}]")
     ax.set_xlim(0, 1)
     paths.append(_finish(fig, ax, "NT2F plot (sequences not yet failed)", "Normalised time t / N",
                          "Fraction of sequences", out / "nt2f.png"))

@@ -185,7 +185,7 @@ def run_experiment(
         for spec in specs:
             locks.enter_context(lock_run_dir(run_dir(exp, spec)))
         try:
-            _run_locked(exp, specs, jobs, force, progress, log, executor, outcomes)
+            _run_locked(exp, specs, sequences, jobs, force, progress, log, executor, outcomes)
         except Interrupted as exc:
             exc.outcomes = list(outcomes)
             raise
@@ -199,8 +199,9 @@ def run_experiment(
     return outcomes
 
 
-def _run_locked(exp: Experiment, specs: list[RunSpec], jobs: int | None, force: bool, progress: bool,
-                log: Callable[[str], None], executor: Executor | None, outcomes: list[SequenceOutcome]) -> None:
+def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | None, jobs: int | None,
+                force: bool, progress: bool, log: Callable[[str], None], executor: Executor | None,
+                outcomes: list[SequenceOutcome]) -> None:
     pending: list[tuple[RunSpec, int, Sequence]] = []
     for spec in specs:
         notes = protocol_warnings(spec)

@@ -53,6 +53,9 @@ BLOCKS = ("egomotion", "tracker", "estimator")
 ORDER = ("egomotion", "estimator", "tracker", "estimator+")
 LANES = ("camera",) + BLOCKS
 EVENTS = ("start", "publish", "skip")
+#: ``<seq>.frames.csv`` columns of each tracker call: its box and its search region
+TRACKER_CALL_COLUMNS = ("tracker_x", "tracker_y", "tracker_w", "tracker_h",
+                        "search_x", "search_y", "search_w", "search_h")
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
 
 
@@ -169,7 +172,10 @@ class SequenceRun:
     ``wall_ms``: block -> (N,) wall time of the call started at frame k (NaN where none);
     ``trace``: start/publish/skip events; ``rates_hz``: block -> starts per second of camera
     time (initialisation included); ``bad_frames``: (frame, reason) of the unreadable frames
-    that were excluded from scoring (``skip_bad_frames``)."""
+    that were excluded from scoring (``skip_bad_frames``); ``tracker_calls``: (N, 8) for
+    ``mata-eval play``, the box ``x, y, w, h`` returned by the tracker call started at frame k
+    and its search region (the tracker's ``extra`` keys ``search_x, search_y, search_w,
+    search_h``), NaN where none."""
 
     fps: float
     boxes: np.ndarray
@@ -180,9 +186,12 @@ class SequenceRun:
     trace: tuple[TraceEvent, ...]
     rates_hz: Mapping[str, float]
     bad_frames: tuple[tuple[int, str], ...] = ()
+    tracker_calls: np.ndarray | None = None
 
     def frames_csv(self) -> str:
         cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
+        if self.tracker_calls is not None:
+            cols += list(TRACKER_CALL_COLUMNS)
         out = io.StringIO()
         out.write(",".join(cols) + "\n")
         conf = [_fmt(v) for v in self.confidence]
@@ -190,6 +199,8 @@ class SequenceRun:
         for k in range(len(self.boxes)):
             cells = [str(k), str(int(self.scored[k])), conf[k]] + [w[k] for w in walls]
             cells.append(str(int(self.source_frame[k])))
+            if self.tracker_calls is not None:
+                cells += [_fmt(v) for v in self.tracker_calls[k]]
             out.write(",".join(cells) + "\n")
         return out.getvalue()
 
@@ -340,6 +351,7 @@ def sequence_steps(
     calls = {b: 0 for b in BLOCKS}
     consumed = {"egomotion": 0, "tracker": 1}  # estimator's read position (tracker: after the init box)
     wall_ms = {b: np.full(n, np.nan) for b in ("tracker", "egomotion", "estimator") if b in active}
+    tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)
     trace: list[TraceEvent] = []
     t_end = (n - 1) / fps
     init_box = sequence.init_box
@@ -464,6 +476,9 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
                     _check_output(value, k, tk)
+                    bx, ex = value.box, value.extra or {}
+                    tracker_calls[k] = (bx.x, bx.y, bx.w, bx.h) + tuple(
+                        float(ex.get(c, math.nan)) for c in ("search_x", "search_y", "search_w", "search_h"))
             else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
                     t0 = clock()
@@ -512,7 +527,8 @@ def sequence_steps(
     # Stable sort: events at the same instant keep the order in which they happened (a publish
     # due at t_k before the starts of frame k; a zero-latency publish right after its start).
     trace.sort(key=lambda e: (e.frame, round(e.t / EPS)))  # times equal within EPS tie
-    return SequenceRun(fps, boxes, scored, confidence, source, wall_ms, tuple(trace), rates, tuple(bad_frames))
+    return SequenceRun(fps, boxes, scored, confidence, source, wall_ms, tuple(trace), rates, tuple(bad_frames),
+                       tracker_calls)
 
 
 def _first_frame_at(t: float, fps: float) -> int:

@@ -266,7 +266,8 @@ class KCFTracker:
             box=Box.from_center(new_cx, new_cy, new_w, new_h),
             confidence=confidence,
             score_map=np.fft.fftshift(resp).astype(np.float32),
-            extra={"psr": psr, "peak": peak, "relative_peak": relative_peak, "scale": float(scale)},
+            extra={"psr": psr, "peak": peak, "relative_peak": relative_peak, "scale": float(scale),
+                   "search_x": float(x0), "search_y": float(y0), "search_w": float(ww), "search_h": float(wh)},
         )
 
 

@@ -294,7 +294,8 @@ class NanoTrack:
         scale_z = f32(EXEMPLAR) / sz
         sx = sz * f32(INSTANCE // EXEMPLAR)                     # cv2: integer 255 / 127 = 2
         backbone, head = self._networks()
-        xf = backbone({"input": self._subwindow(image, self._pos, int(sx), INSTANCE)})["output"]
+        crop_at = self._pos.copy()
+        xf = backbone({"input": self._subwindow(image, crop_at, int(sx), INSTANCE)})["output"]
         out = head({"input1": self._zf, "input2": xf})
         cls = np.asarray(out["output1"], dtype=f32).reshape(2, SCORE_SIZE, SCORE_SIZE)
         loc = np.asarray(out["output2"], dtype=f32).reshape(4, SCORE_SIZE, SCORE_SIZE)
@@ -343,7 +344,11 @@ class NanoTrack:
             box=box,
             confidence=float(np.clip(map_window_score(score, p.window_alpha), 0.0, 1.0)),
             score_map=score.astype(np.float32),
-            extra={"peak": float(score.max()), "tracking_score": float(pscore[iy, ix])},
+            extra={"peak": float(score.max()), "tracking_score": float(pscore[iy, ix]),
+                   # the search crop of _subwindow: side int(sx), corner int(pos) - (side + 1) // 2
+                   "search_x": float(int(crop_at[0]) - (int(sx) + 1) // 2),
+                   "search_y": float(int(crop_at[1]) - (int(sx) + 1) // 2),
+                   "search_w": float(int(sx)), "search_h": float(int(sx))},
         )
 
 

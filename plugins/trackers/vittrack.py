@@ -190,7 +190,8 @@ class VitTrack:
             box=Box.from_array(reported),
             confidence=float(np.clip(confidence, 0.0, 1.0)),
             score_map=score,
-            extra={"peak": peak, "tracking_score": tracking_score, "found": float(found)},
+            extra={"peak": peak, "tracking_score": tracking_score, "found": float(found),
+                   "search_x": float(x1), "search_y": float(y1), "search_w": float(crop_sz), "search_h": float(crop_sz)},
         )
 
 
