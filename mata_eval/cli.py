@@ -75,7 +75,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.output:
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
     print(f"experiment {exp.name} ({exp.path}): {len(exp.runs)} run(s) -> {exp.output}", flush=True)
-    checked = _preflight(exp, args.runs)
+    checked = _preflight(exp, args.runs, args.debug)
     if checked is None:
         return 2
     names = [r.name for r in checked.runs]
@@ -107,13 +107,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def _preflight(exp: Any, only: Sequence[str] | None) -> Any:
+def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False) -> Any:
     """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
-    skipped optional run group and per problem. Returns the plan, or None when a problem
-    stops the experiment."""
+    skipped optional run group and per problem (``debug``: raise the first problem's exception,
+    with its traceback). Returns the plan, or None when a problem stops the experiment."""
     from .run.preflight import plan, skipped_lines
 
     checked = plan(exp, only)
+    if debug and checked.errors:
+        raise checked.errors[0]
     for line in skipped_lines(checked.skipped):
         print(line, flush=True)
     for line in checked.problems:
@@ -147,7 +149,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
                   for k in ("dataset", "tracker", "egomotion", "estimator", "protocol")]
         print(f"  {r.name}: {' '.join(blocks)} occlusion={'on' if r.occlusion else 'off'}"
               + ("  (optional)" if r.optional else ""))
-    checked = _preflight(exp, None)
+    checked = _preflight(exp, None, args.debug)
     if checked is None:
         return 2
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"

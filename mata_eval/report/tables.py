@@ -91,13 +91,18 @@ class Table:
 
 
 def to_terminal(t: Table) -> str:
-    """Fixed-width columns: the first left-aligned, the others right-aligned."""
+    """Fixed-width columns: the stub (label) columns left-aligned, the values right-aligned."""
     cols = t.header
     widths = [max(len(c), *(len(r[i]) for r in t.rows)) if t.rows else len(c) for i, c in enumerate(cols)]
-    line = "  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cols, widths)))
-    out = [line, "-" * len(line)]
+    n_left = max(1, len(t.stub))
+
+    def line(cells: list[str]) -> str:
+        return "  ".join(v.ljust(w) if i < n_left else v.rjust(w) for i, (v, w) in enumerate(zip(cells, widths)))
+
+    head = line(cols)
+    out = [head, "-" * len(head)]
     for r in t.rows:
-        out.append("  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(r, widths))))
+        out.append(line(r))
     text = "\n".join(out) + "\n"
     if t.notes:
         text += "\n" + "\n".join(f"- {n}" for n in t.notes) + "\n"

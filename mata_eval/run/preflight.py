@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Iterable
 
-from ..data.datasets.annotations import MissingFrames
+from ..data.datasets.annotations import DatasetError, MissingFrames
 from .config import Experiment, PluginBlock, RunSpec
 
 BLOCK_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")
@@ -27,16 +27,18 @@ class Problem:
     block: str
     runs: tuple[str, ...]
     message: str
+    error: BaseException | None = field(default=None, compare=False, repr=False)  # for --debug
 
 
 @dataclass(frozen=True)
 class Plan:
-    """The runs that can go, the optional runs skipped (with the problem that skips them), and
-    the problems that stop the experiment (one line each)."""
+    """The runs that can go, the optional runs skipped (with the problem that skips them), the
+    problems that stop the experiment (one line each) and the exceptions behind them."""
 
     runs: tuple[RunSpec, ...]
     skipped: tuple[tuple[RunSpec, Problem], ...]
     problems: tuple[str, ...]
+    errors: tuple[BaseException, ...] = ()
 
 
 def _one_line(exc: BaseException) -> str:
@@ -44,7 +46,7 @@ def _one_line(exc: BaseException) -> str:
     return lines[0] if lines else type(exc).__name__
 
 
-def check_dataset(block: PluginBlock) -> str | None:
+def check_dataset(block: PluginBlock) -> BaseException | None:
     """The dataset's sequences load (annotations) and each has its frames on disk. A dataset
     plugin may instead provide ``check()`` (the synthetic suite: generated on first use)."""
     try:
@@ -54,9 +56,9 @@ def check_dataset(block: PluginBlock) -> str | None:
             return None
         sequences = dataset.sequences()
     except Exception as exc:  # any failure is the problem to report
-        return _one_line(exc)
+        return exc
     if not sequences:
-        return "no sequences found"
+        return DatasetError("no sequences found")
     bad = [s.name for s in sequences if isinstance(s.loader, MissingFrames)
            or (s.loader is None and not (s.frame_paths and os.path.isfile(s.frame_paths[0])
                                          and os.path.isfile(s.frame_paths[-1])))]
@@ -64,11 +66,11 @@ def check_dataset(block: PluginBlock) -> str | None:
         shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         where = next((s.loader.looked_in for s in sequences if isinstance(s.loader, MissingFrames)), None)
         hint = f" (looked in {' or '.join(where)})" if where else ""
-        return f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}"
+        return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}")
     return None
 
 
-def check_block(block: PluginBlock) -> str | None:
+def check_block(block: PluginBlock) -> BaseException | None:
     """The plugin can be built here (model files found) and its optional ``check()`` passes
     (e.g. an ONNX tracker opens its model with the chosen backend)."""
     try:
@@ -76,13 +78,13 @@ def check_block(block: PluginBlock) -> str | None:
         if hasattr(obj, "check"):
             obj.check()
     except Exception as exc:  # any failure is the problem to report
-        return _one_line(exc)
+        return exc
     return None
 
 
 def find_problems(runs: Iterable[RunSpec]) -> list[Problem]:
     """Every problem of ``runs``, each distinct plugin block checked once."""
-    checked: dict[tuple[str, str], tuple[str | None, list[str]]] = {}
+    checked: dict[tuple[str, str], tuple[BaseException | None, list[str]]] = {}
     for spec in runs:
         for key in BLOCK_KEYS:
             block: Any = getattr(spec, key)
@@ -92,8 +94,8 @@ def find_problems(runs: Iterable[RunSpec]) -> list[Problem]:
             if ident not in checked:
                 checked[ident] = (check_dataset(block) if key == "dataset" else check_block(block), [])
             checked[ident][1].append(spec.name)
-    return [Problem(what, tuple(names), message)
-            for (what, _), (message, names) in checked.items() if message is not None]
+    return [Problem(what, tuple(names), _one_line(error), error)
+            for (what, _), (error, names) in checked.items() if error is not None]
 
 
 def _runs_text(names: tuple[str, ...], n_all: int) -> str:
@@ -121,9 +123,11 @@ def plan(exp: Experiment, only: Iterable[str] | None = None) -> Plan:
             for n in p.runs:
                 skipped.setdefault(n, p)
         else:
-            stopping.append(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}")
+            stopping.append(p)
     return Plan(tuple(r for r in specs if r.name not in skipped),
-                tuple((by_name[n], p) for n, p in skipped.items()), tuple(stopping))
+                tuple((by_name[n], p) for n, p in skipped.items()),
+                tuple(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}" for p in stopping),
+                tuple(p.error for p in stopping if p.error is not None))
 
 
 def skipped_lines(skipped: Iterable[tuple[RunSpec, Problem]]) -> list[str]:
