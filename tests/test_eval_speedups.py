@@ -77,7 +77,8 @@ def test_dataset_frame_paths_list_or_name_the_frames(tmp_path):
 
 
 def _rows(out: str) -> dict[str, list[str]]:
-    return {line.split()[0]: line.split()[1:] for line in out.splitlines()[2:] if line.strip()}
+    return {line.split()[0]: line.split()[1:] for line in out.splitlines()[2:]
+            if line.strip() and not line.startswith("- ")}  # "- SR: ..." lines: the table's legend
 
 
 def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsys):
@@ -106,7 +107,8 @@ def test_version_answers_without_importing_the_packages():
             "print(sorted(m for m in sys.modules if m.startswith('mata_eval.') or m in ('numpy', 'cv2')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.splitlines()[0] == f"mata-eval {__version__}"
-    assert eval(out.splitlines()[1]) == ["mata_eval.cli", "mata_eval.core", "mata_eval.core.errors"]  # no numpy
+    # no numpy; mata_eval.run is its package __init__ only (imported to make `mata_eval.run(...)` callable)
+    assert eval(out.splitlines()[1]) == ["mata_eval.cli", "mata_eval.core", "mata_eval.core.errors", "mata_eval.run"]
 
 
 def test_ground_truth_parser_matches_float_and_names_bad_lines(tmp_path):
