@@ -214,3 +214,26 @@ def test_a_worker_killed_by_the_os_fails_only_its_sequence(tmp_path, monkeypatch
     assert "worker process died" in outcomes["s2"].reason
     failure = json.loads((tmp_path / "out" / "exp" / "s2.failed.json").read_text())
     assert "killed by the operating system" in failure["reason"]
+
+
+def test_a_run_that_kills_its_worker_fails_only_itself_not_the_runs_sharing_its_frames(tmp_path, monkeypatch):
+    """The killer and a plain run share the task (and the decode) of each sequence: the task
+    whose worker dies is retried one run per process, so only the killer's s2 fails."""
+    import multiprocessing
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("the fake plugins reach the workers only through fork")
+    import mata_eval.run.config
+
+    base = _registry()
+    entry = lambda kind, cls: PluginEntry(kind, cls.name, cls, "test", "")
+    reg = Registry({**base.plugins, "dataset": {"victims": entry("dataset", VictimDataset)},
+                    "tracker": {"killer": entry("tracker", KillerTracker), "shift": base.plugins["tracker"]["shift"]}}, ())
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", lambda: reg)
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: victims}}\ntracker: {{name: killer}}\n"
+                 "matrix:\n  tracker:\n    killer: {name: killer}\n    plain: {name: shift}\n")
+    exp = load_experiment(p, reg)
+    outcomes = {(o.run, o.sequence): o.status for o in run_experiment(exp, jobs=2, progress=False, log=lambda s: None)}
+    assert outcomes.pop(("killer", "s2")) == "failed"
+    assert set(outcomes.values()) == {"done"} and len(outcomes) == 9

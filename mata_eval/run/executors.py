@@ -9,6 +9,7 @@ with the reason."""
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import multiprocessing
 import os
 import signal
@@ -96,11 +97,13 @@ class LocalExecutor:
                 done(task, run_task(exp, task))
                 stop.check()
             return
-        # A worker killed by the OS breaks the pool and every task in flight with it: rerun those
-        # one process each, which finds the task that kills its process; the others complete.
+        # A worker killed by the OS breaks the pool and every task in flight with it: rerun their
+        # runs one process each, which finds the run that kills its process; the others complete.
         for task in self._pool(exp, tasks, self.workers, done):
-            if self._pool(exp, [task], 1, done):
-                done(task, failed(task, WORKER_DIED))
+            for run in task.runs:
+                alone = dataclasses.replace(task, runs=(run,))
+                if self._pool(exp, [alone], 1, done):
+                    done(alone, failed(alone, WORKER_DIED))
 
     @staticmethod
     def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> list[Task]:
