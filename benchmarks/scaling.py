@@ -3,10 +3,10 @@
 Runs one experiment three times, each into a fresh output folder and in a fresh process:
 ``-j 1`` (in-process, the baseline), ``-j 2`` (two worker processes) and ``--executor ray`` on
 a local Ray cluster of 2 CPUs. Prints, for each, the wall time and the CPU-seconds of every
-process involved (the driver, its workers and, for Ray, the raylet, GCS and workers: this
-process makes itself their subreaper so that the CPU of each is counted when it exits), and
-both against ``-j 1`` measured in the same run. Also checks that the three give the same
-predictions.
+process involved (the driver, its workers and, for Ray, the raylet, GCS and workers: reaped
+children through ``RUSAGE_CHILDREN``, this process being their subreaper, and every descendant
+sampled from /proc, Linux only), and both against ``-j 1`` measured in the same run. Also
+checks that the three give the same predictions.
 
 Default: experiments/protocols.yaml (24 runs) on the first 2 sequences of its dataset; with
 ``--sequences 20`` the whole synthetic suite.
@@ -24,6 +24,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -81,6 +82,42 @@ def cpu_of_children() -> float:
     return r.ru_utime + r.ru_stime
 
 
+class CpuSampler(threading.Thread):
+    """Polls the CPU time of every descendant of this process (``/proc/PID/stat``) until
+    stopped: Ray's workers are reaped by its raylet, so their CPU never reaches
+    ``RUSAGE_CHILDREN``. A process that lives less than ``every_s`` may be missed."""
+
+    def __init__(self, every_s: float = 0.2):
+        super().__init__(daemon=True)
+        self.every_s = every_s
+        self.cpu: dict[int, float] = {}
+        self.halt = threading.Event()
+
+    def run(self) -> None:
+        tick = os.sysconf("SC_CLK_TCK")
+        while not self.halt.wait(self.every_s):
+            parents: dict[int, int] = {}
+            times: dict[int, float] = {}
+            for stat in Path("/proc").glob("[0-9]*/stat"):
+                try:
+                    fields = stat.read_text().rsplit(")", 1)[1].split()
+                except OSError:
+                    continue
+                pid = int(stat.parent.name)
+                parents[pid] = int(fields[1])
+                times[pid] = (int(fields[11]) + int(fields[12])) / tick
+            mine = {os.getpid()}
+            for _ in range(16):  # descendants, generation by generation
+                mine |= {pid for pid, parent in parents.items() if parent in mine}
+            for pid in mine - {os.getpid()}:
+                self.cpu[pid] = max(self.cpu.get(pid, 0.0), times[pid])
+
+    def total(self) -> float:
+        self.halt.set()
+        self.join()
+        return sum(self.cpu.values())
+
+
 def small_experiment(src: Path, n_sequences: int, folder: Path) -> Path:
     """``src`` with its top-level dataset cut to its first ``n_sequences`` sequences."""
     from mata_eval.run.config import load_experiment
@@ -104,16 +141,20 @@ def predictions_digest(folder: Path) -> str:
 def measure(label: str, args: list[str], experiment: Path, out: Path) -> dict:
     cmd = [sys.executable, "-m", "mata_eval", "run", str(experiment), "-o", str(out), "--no-report", "-q", *args]
     cpu0 = cpu_of_children()
+    sampler = CpuSampler()
+    sampler.start()
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     processes, killed = reap()
-    cpu = cpu_of_children() - cpu0
+    # Exact for what was reaped (the driver, local workers); the samples also see Ray's workers.
+    cpu = max(cpu_of_children() - cpu0, sampler.total())
+    processes = max(processes + 1, len(sampler.cpu))
     if proc.returncode != 0:
         sys.exit(f"{label}: {' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
     if killed:
         print(f"  ({label}: {len(killed)} leftover process(es) killed after 30 s)")
-    return {"label": label, "wall": wall, "cpu": cpu, "processes": processes + 1,
+    return {"label": label, "wall": wall, "cpu": cpu, "processes": processes,
             "digest": predictions_digest(out)}
 
 
