@@ -1,5 +1,14 @@
 """The live runtime against hand-computed timelines, with fake blocks of controlled duration
-(``time.sleep``: GIL-free, like OpenCV / ONNX Runtime calls)."""
+(``time.sleep``: GIL-free, like OpenCV / ONNX Runtime calls).
+
+Robust on a loaded machine (2 shared cores, load 15-20): the timed scenarios use a 10 fps camera
+(100 ms period) and durations that put every hand-computed start and publish half a period
+(50 ms) away from the nearest frame, so a few ms of sleep overshoot or thread wake-up cannot
+change which frame a block takes. Orders and frames are asserted exactly; times within ``LATE``
+late (and never early), a fraction of the 50 ms margin. If the machine was so loaded that an
+event came more than ``LATE`` late, the scenario is run again (:func:`timely`, at most
+``TRIES`` runs): a retry for lateness only; the structure of the run it returns is asserted
+exactly, and a runtime whose events are always late (e.g. one waiting for the next frame) fails."""
 
 from __future__ import annotations
 
@@ -18,9 +27,18 @@ from mata_eval.run.live import run_live
 from mata_eval.run.scheduler import BlockError
 from mata_eval.types import Box, Estimate, Motion, TrackerOutput
 
-TOL = 0.015  # s: sleep overshoot and thread wake-up on a loaded machine; every event in the
-#              timelines below is >= 25 ms away from a frame boundary
+FPS = 10.0    # camera of the timed scenarios: T_k = 100 k ms
+LATE = 0.030  # s: how late an event may be (sleep overshoot, wake-up); < the 50 ms margin
+TRIES = 3     # runs of a timed scenario before its lateness fails the test
 INIT = Box(0.0, 0.0, 10.0, 10.0)
+
+# The tracker of the timed scenarios: init 150 ms, then 200, 300, 200 ms (then 200, 50). Free at
+# 150 ms it takes frame 1 (published at 100), publishes at 350 and takes frame 3, publishes at
+# 650 and takes frame 6 (4 and 5 are dropped), publishes at 850 and takes frame 8.
+TRACKER_S = [0.150, 0.200, 0.300, 0.200, 0.200, 0.050]
+TRACKER_FRAMES = [0, 1, 3, 6, 8]
+TRACKER_STARTS = [0.0, 0.150, 0.350, 0.650, 0.850]
+TRACKER_PUBLISHES = [0.150, 0.350, 0.650, 0.850]  # the first is the init's (no output)
 
 
 def sequence(n, fps):
@@ -87,65 +105,109 @@ def publishes(run, block):
     return [(e.frame, e.t) for e in run.trace if e.block == block and e.event == "publish"]
 
 
+def lateness(run, fps, expected):
+    """How late the run was against the hand-computed timeline: the camera against ``k / fps``,
+    and each block's i-th start / publish against ``expected[block] = (starts, publishes)``."""
+    cam = [e.t for e in run.trace if e.block == "camera"]
+    late = [t - k / fps for k, t in enumerate(cam)]
+    for block, (want_starts, want_publishes) in expected.items():
+        for got, want in ((starts(run, block), want_starts), (publishes(run, block), want_publishes)):
+            late += [t - w for (_, t), w in zip(got, want)]
+    return max(late)
+
+
+def timely(scenario, fps, expected):
+    """``scenario()`` -> (run, *extra), run again while an event was more than ``LATE`` late
+    (a loaded machine), at most ``TRIES`` times. Lateness only: what is returned is asserted
+    in full by the caller, so a wrong structure is never retried into a pass."""
+    for _ in range(TRIES):
+        result = scenario()
+        late = lateness(result[0], fps, expected)
+        if late <= LATE:
+            return result
+    pytest.fail(f"an event came {1e3 * late:.0f} ms late in each of {TRIES} runs (> {1e3 * LATE:.0f} ms)")
+
+
+def assert_times(got, want):
+    """Each time at or after the hand-computed one (less 2 ms: clock reads) and at most LATE after."""
+    late = np.asarray(got, float) - np.asarray(want, float)
+    assert late.min() > -0.002 and late.max() <= LATE, (np.round(1e3 * late, 1), "ms late")
+
+
 def test_tracker_takes_the_newest_frame_and_the_output_is_held_on_real_times():
-    # 20 fps (T_k = 50 k ms). Tracker: init 125 ms, then 100, 150, 100 ms. Free at 125 ms, it takes
-    # frame 2 (100 ms), publishes at 225 (frame 5 is the first to see it), takes frame 4 (200),
-    # publishes at 375, takes frame 7 (350), publishes at 475, takes frame 9 (450).
-    tracker = Tracker([0.125, 0.100, 0.150, 0.100, 0.100, 0.100])
-    run = run_live(sequence(12, 20.0), tracker, warmup=0)
+    # TRACKER_* above: starts on frames 0, 1, 3, 6, 8 at 0, 150, 350, 650, 850 ms (a queue would
+    # feed it frames 1, 2, 3, ...), publishes at 150 (init), 350, 650, 850 ms.
+    def scenario():
+        return (run_live(sequence(10, FPS), Tracker(TRACKER_S), warmup=0),)
+
+    (run,) = timely(scenario, FPS, {"tracker": (TRACKER_STARTS, TRACKER_PUBLISHES)})
     st = starts(run, "tracker")
-    assert [f for f, _ in st][:5] == [0, 2, 4, 7, 9]
-    np.testing.assert_allclose([t for _, t in st][:5], [0.0, 0.125, 0.225, 0.375, 0.475], atol=TOL)
+    assert [f for f, _ in st] == TRACKER_FRAMES + [9]  # the last frame, taken when free at 1050 ms
+    assert_times([t for _, t in st][:5], TRACKER_STARTS)
     pub = publishes(run, "tracker")
-    assert [f for f, _ in pub] == [3, 5, 8, 10]    # init at 125 ms, then 225, 375, 475 ms
-    np.testing.assert_allclose([t for _, t in pub], [0.125, 0.225, 0.375, 0.475], atol=TOL)
-    # held: init until frame 4, frame 2's box at frames 5-7, frame 4's at 8-9, frame 7's at 10-11
-    assert run.source_frame.tolist() == [0] * 5 + [2] * 3 + [4] * 2 + [7] * 2
-    assert run.boxes[:, 0].tolist() == [0.0] * 5 + [2.0] * 3 + [4.0] * 2 + [7.0] * 2
+    assert [f for f, _ in pub] == [2, 4, 7, 9]  # the first frame at or after each publish
+    assert_times([t for _, t in pub], TRACKER_PUBLISHES)
+    # held on real times: the initial box until frame 3, frame 1's box (350 ms) at frames 4-6,
+    # frame 3's (650 ms) at 7-8, frame 6's (850 ms) at 9
+    assert run.source_frame.tolist() == [0] * 4 + [1] * 3 + [3] * 2 + [6]
+    assert run.boxes[:, 0].tolist() == [0.0] * 4 + [1.0] * 3 + [3.0] * 2 + [6.0]
     # never queued: the frames it did not take are skipped, and it never went back to one
     skips = [e.frame for e in run.trace if e.block == "tracker" and e.event == "skip"]
-    assert skips == [1, 3, 5, 6, 8, 10]
-    cam = [e.t for e in run.trace if e.block == "camera"]
-    np.testing.assert_allclose(cam, np.arange(12) / 20.0, atol=TOL)
-    assert np.isfinite(run.wall_ms["tracker"][[0, 2, 4, 7, 9]]).all()
-    np.testing.assert_allclose(run.wall_ms["tracker"][[0, 2, 4, 7]], [125, 100, 150, 100], atol=1e3 * TOL)
+    assert skips == [2, 4, 5, 7]
+    assert_times([e.t for e in run.trace if e.block == "camera"], np.arange(10) / FPS)
+    assert_times(run.wall_ms["tracker"][TRACKER_FRAMES] / 1e3, TRACKER_S[:5])
 
 
 def test_three_blocks_run_in_parallel_and_the_estimator_ticks_on_every_frame():
-    fps = 20.0
-    tracker = Tracker([0.125, 0.100, 0.150, 0.100, 0.100, 0.100])
-    est = Estimator(0.005, fps)
-    run = run_live(sequence(12, fps), tracker, EgoMotion(0.030), est, warmup=0)
-    # Overlap: 30 ms ego-motion + 5 ms estimator each frame beside the tracker: if they shared one
-    # worker they could not keep up with a 50 ms camera while the tracker sleeps 100-150 ms.
-    assert [f for f, _ in starts(run, "egomotion")] == list(range(12))
-    assert [f for f, _ in starts(run, "estimator")] == list(range(12))
-    assert [f for f, _ in starts(run, "tracker")][:5] == [0, 2, 4, 7, 9]
-    # Tick k (at ~T_k) receives the motion of frame k-1 (published at T_{k-1} + 30 ms) and the
-    # detections published since tick k-1: frame 2's (225 ms) at tick 5, 4's (375) at 8, 7's at 10.
+    # Beside the tracker above: ego-motion 50 ms (the motion of frame k is published at T_k + 50
+    # ms, half-way to tick k + 1) and the estimator 5 ms (tick k publishes at T_k + 5 ms). One
+    # worker running them in turn could not start the ego-motion on every frame while the
+    # tracker sleeps 200-300 ms.
+    def scenario():
+        tracker, est = Tracker(TRACKER_S), Estimator(0.005, FPS)
+        return run_live(sequence(10, FPS), tracker, EgoMotion(0.050), est, warmup=0), tracker, est
+
+    every = np.arange(10) / FPS
+    run, tracker, est = timely(scenario, FPS, {"tracker": (TRACKER_STARTS, TRACKER_PUBLISHES),
+                                               "egomotion": (every, every[1:] + 0.050),
+                                               "estimator": (every, every + 0.005)})
+    assert [f for f, _ in starts(run, "egomotion")] == list(range(10))
+    assert [f for f, _ in starts(run, "estimator")] == list(range(10))
+    assert [f for f, _ in starts(run, "tracker")] == TRACKER_FRAMES + [9]
+    assert_times([t for _, t in starts(run, "egomotion")], every)
+    # Tick k receives the motion of frame k-1 and the detections published since tick k-1:
+    # frame 1's (350 ms) at tick 4, frame 3's (650 ms) at 7, frame 6's (850 ms) at 9.
     ticks = {k: (m, d) for k, m, d in est.ticks}
+    assert sorted(ticks) == list(range(1, 10))
     assert ticks[1] == ([], [])
-    for k in range(2, 12):
-        assert ticks[k][0] == [k - 1], k
-    assert {k: d for k, (m, d) in ticks.items() if d} == {5: [2], 8: [4], 10: [7]}
+    assert all(ticks[k][0] == [k - 1] for k in range(2, 10)), ticks
+    assert {k: d for k, (m, d) in ticks.items() if d} == {4: [1], 7: [3], 9: [6]}
     # Frame k scores the estimate of tick k-1 (published at T_{k-1} + 5 ms); tick 0 is the init.
-    assert run.source_frame.tolist() == [0, 0] + list(range(1, 11))
-    # The tracker's prior is the newest estimate published before it starts (tick 2 at 105 ms
-    # for its start at 125 ms, tick 4 at 205 for 225, tick 7 at 355 for 375).
-    priors = [p for _, p in tracker.calls[1:4]]
-    assert [p[0] - 5.0 for p in priors] == [2.0, 4.0, 7.0]
+    assert run.source_frame.tolist() == [0, 0] + list(range(1, 9))
+    # The tracker's prior is the newest estimate published before it starts: tick 1 (105 ms)
+    # for its start at 150 ms, tick 3 (305) for 350, tick 6 (605) for 650, tick 8 for 850.
+    priors = [p for _, p in tracker.calls[1:5]]
+    assert [p[0] - 5.0 for p in priors] == [1.0, 3.0, 6.0, 8.0]
 
 
 def test_time_scale_stretches_each_call():
-    # work 20 ms, time_scale 5: published 100 ms after the start, the frames.csv keeps the 20 ms.
-    tracker = Tracker([0.020])
-    run = run_live(sequence(10, 20.0), tracker, time_scale={"tracker": 5.0}, warmup=0)
-    st, pub = starts(run, "tracker"), publishes(run, "tracker")
-    assert [f for f, _ in st][:4] == [0, 2, 4, 6]  # free at 100, 200, 300 ms: frames 2, 4, 6
-    work = run.wall_ms["tracker"][[0, 2, 4, 6]] / 1e3
-    np.testing.assert_allclose(work, 0.020, atol=TOL)
-    for (_, t0), (_, t1), d in zip(st, pub, work):  # 5 x the work measured (sleep overshoot too)
-        assert t1 - t0 == pytest.approx(5 * d, abs=0.005)
+    # time_scale 2: init work 75 ms publishes 150 ms after its start, then work 100 ms publishes
+    # 200 ms after: starts on frames 0, 1, 3, 5 at 0, 150, 350, 550 ms (unstretched: 0, 1, 2, 3).
+    # frames.csv keeps the work time, before the stretch.
+    def scenario():
+        return (run_live(sequence(9, FPS), Tracker([0.075, 0.100]), time_scale={"tracker": 2.0}, warmup=0),)
+
+    want_starts, want_publishes = [0.0, 0.150, 0.350, 0.550], [0.150, 0.350, 0.550, 0.750]
+    (run,) = timely(scenario, FPS, {"tracker": (want_starts, want_publishes)})
+    st, pub = starts(run, "tracker")[:4], publishes(run, "tracker")
+    assert [f for f, _ in st] == [0, 1, 3, 5]
+    assert [f for f, _ in pub] == [2, 4, 6, 8]
+    assert_times([t for _, t in st], want_starts)
+    assert_times([t for _, t in pub], want_publishes)
+    work = run.wall_ms["tracker"][[0, 1, 3, 5]] / 1e3
+    assert_times(work, [0.075, 0.100, 0.100, 0.100])
+    # each call published 2 x its measured work after it started (the stretch overshoots a little)
+    assert_times([t1 - t0 for (_, t0), (_, t1) in zip(st, pub)], 2 * work)
 
 
 def test_a_slow_block_drops_frames_instead_of_queueing_them():
