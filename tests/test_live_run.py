@@ -68,9 +68,14 @@ def test_live_run_folder_has_the_usual_files_with_real_times(live_run):
     trace = read_trace_csv((run / "glide.trace.csv").read_text())
     cam = [e.t for e in trace if e.block == "camera" and e.event == "publish"]
     assert len(cam) == N
-    # real times: the camera is on the wall clock (a few ms of lateness at most, never early)
+    # real times: the camera publishes frame k at k / FPS, never before; lateness does not add up
+    # from frame to frame (a camera sleeping 1 / FPS after each publish, or waiting for the
+    # blocks, falls further behind each frame). Measured with the real blocks on the 2 shared
+    # cores at load 10-20 plus two busy loops: median lateness <= 10 ms, single frames up to
+    # 110 ms (the camera thread not scheduled; frame 0 waits for the block threads to start).
     lateness = np.array(cam) - np.arange(N) / FPS
-    assert lateness.min() > -1e-3 and lateness.max() < 0.030
+    assert lateness.min() > -1e-3
+    assert np.median(lateness) < 0.5 / FPS and lateness.max() < 5 / FPS, np.round(1e3 * lateness, 1)
     # the scored box of each frame is the output of a frame already captured
     src = np.array([int(r["source_frame"]) for r in frames])
     assert (src <= np.arange(N)).all() and (src[1:] >= src[:-1]).all()
