@@ -4,11 +4,18 @@ tests that need it skip with the reason when it is absent."""
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+# A shell that starts the suite as a background job (`bash .ci/run &`, nohup, some CI runners)
+# hands it SIGINT ignored, and every process it starts inherits that: the Ctrl-C tests (stop,
+# live, Ray) would then test nothing. Python's own handler in the test process makes SIGINT
+# behave as on a terminal here and, reset to the default on exec, in every child.
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def shared_data_dir() -> Path:
