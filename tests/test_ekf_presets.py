@@ -13,14 +13,11 @@ P = HomographyEKF.Params
 
 
 @pytest.mark.parametrize("name", sorted(CONFIGS))
-def test_preset_paper_reproduces_the_old_filter(name):
-    """Bit for bit when the reference was stored; since the faster Joseph block update of
-    b8f6397 (same algebra, other product order) to rounding: 1e-12 relative (measured 3e-13 px
-    on the boxes, 5e-11 relative on one covariance entry of ``after``)."""
+def test_preset_paper_reproduces_the_old_filter_bit_for_bit(name):
     ref = np.load(REFERENCE)
     boxes, covs = run(HomographyEKF(P(preset="paper", **CONFIGS[name])))
-    np.testing.assert_allclose(boxes, ref[f"{name}_boxes"], rtol=1e-12, atol=1e-9)
-    np.testing.assert_allclose(covs, ref[f"{name}_covs"], rtol=1e-9, atol=1e-15)
+    assert np.array_equal(boxes, ref[f"{name}_boxes"])
+    assert np.array_equal(covs, ref[f"{name}_covs"])
 
 
 def test_the_default_preset_is_not_the_paper_and_yaml_overrides_a_preset_value():

@@ -12,7 +12,6 @@ analytic Jacobian; the generic filter algebra is checked against filterpy in the
 
 from __future__ import annotations
 
-import math
 from math import factorial
 
 import numpy as np
@@ -293,10 +292,9 @@ def joseph_update_block(x: np.ndarray, P: np.ndarray, z: np.ndarray, sl: slice,
     S = PHt[sl] + R
     K = np.linalg.solve(S, PHt.T).T
     x = x + K @ (z - x[sl])
-    # (I - K E) P (I - K E)^T + K R K^T expanded (E the selector, E P E^T + R = S): the same
-    # Joseph form for any gain K, with n x m products instead of n x n ones.
-    KPt = K @ PHt.T
-    P = P - KPt - KPt.T + K @ S @ K.T
+    A = np.eye(len(x))
+    A[:, sl] -= K
+    P = A @ P @ A.T + K @ R @ K.T
     return x, 0.5 * (P + P.T)
 
 
@@ -354,9 +352,8 @@ def transferred_sigma(H: np.ndarray, C: np.ndarray, p: np.ndarray) -> float:
     """Standard deviation (px, largest axis) of g(p) induced by the homography covariance C:
     sqrt(lambda_max(G C G^T)), G = dg/dh at p. What ``tau_sigma`` is compared with."""
     G = jac_hom(H, p)
-    (a, b), (b2, c) = (G @ C @ G.T).tolist()
-    b = 0.5 * (b + b2)  # the largest eigenvalue of a symmetric 2x2, in closed form
-    return float(np.sqrt(max(0.5 * (a + c) + math.hypot(0.5 * (a - c), b), 0.0)))
+    S = G @ C @ G.T
+    return float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (S + S.T))[-1], 0.0)))
 
 
 def floored(C: np.ndarray | None, floor: np.ndarray) -> np.ndarray:
