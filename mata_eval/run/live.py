@@ -160,13 +160,15 @@ def run_live(
         prefetcher.wait_ready(min(n, prefetch))
         if warmup > 0:
             _warm_up(objs, sequence.image(0), init_box, warmup)
-        t0 = time.perf_counter()
-        now = lambda: time.perf_counter() - t0  # noqa: E731
+        now = lambda: time.perf_counter() - t0  # noqa: E731  (t0 is set below, before frame 0)
         threads = [threading.Thread(target=_worker, name=f"live-{b}", daemon=True,
                                     args=(b, objs, bus, now, scale[b], init_box, feedback and estimator is not None))
                    for b in active]
         for th in threads:
             th.start()
+        # The clock starts once the workers run (they call now() only on a published frame), so
+        # frame 0 is not late by the threads' start-up.
+        t0 = time.perf_counter()
         try:
             _camera(bus, prefetcher, n, fps, t0)
         except BaseException:  # Ctrl-C, a frame that cannot be read
