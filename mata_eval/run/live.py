@@ -36,7 +36,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .scheduler import BLOCKS, EPS, BlockError, SequenceRun, TraceEvent
+from .scheduler import BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps
 from ..core.sequence import Sequence
 from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
 
@@ -139,12 +139,7 @@ def run_live(
     the same result as the scheduler: boxes held at each frame's real time, per-frame work times,
     and a trace of real start / publish / skip times. Ctrl-C (KeyboardInterrupt) stops the camera,
     lets each block finish the call it is in, and is raised again."""
-    fps = float(sequence.fps)
-    n = len(sequence)
-    if n == 0:
-        raise ValueError(f"sequence {sequence.name!r} has no frames")
-    if not (fps > 0 and math.isfinite(fps)):
-        raise ValueError(f"sequence {sequence.name!r}: fps must be positive, got {sequence.fps!r}")
+    n, fps = frames_and_fps(sequence)
     scale = {b: float(time_scale.get(b, 1.0) if isinstance(time_scale, Mapping) else time_scale) for b in BLOCKS}
     objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
     active = [b for b in BLOCKS if objs[b] is not None]

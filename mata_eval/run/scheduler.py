@@ -278,6 +278,18 @@ class _Board:
         return bisect_right(self.t_publish, t - delay + EPS)
 
 
+def frames_and_fps(sequence: Sequence) -> tuple[int, float]:
+    """The camera clock of ``sequence``: its frame count and fps, checked (no frames, or an fps
+    that is not a positive number, is an error naming the sequence)."""
+    fps = float(sequence.fps)
+    n = len(sequence)
+    if n == 0:
+        raise ValueError(f"sequence {sequence.name!r} has no frames")
+    if not (fps > 0 and math.isfinite(fps)):
+        raise ValueError(f"sequence {sequence.name!r}: fps must be positive, got {sequence.fps!r}")
+    return n, fps
+
+
 def run_sequence(
     sequence: Sequence,
     tracker: Any,
@@ -323,12 +335,7 @@ def sequence_steps(
     """:func:`run_sequence` one frame at a time: yields ``k`` before frame k, returns the
     :class:`SequenceRun`. Several runs of one sequence advanced in turn ask for frame k one
     after the other, so they can share its decode (:mod:`mata_eval.run.tasks`)."""
-    fps = float(sequence.fps)
-    n = len(sequence)
-    if n == 0:
-        raise ValueError(f"sequence {sequence.name!r} has no frames")
-    if not (fps > 0 and math.isfinite(fps)):
-        raise ValueError(f"sequence {sequence.name!r}: fps must be positive, got {sequence.fps!r}")
+    n, fps = frames_and_fps(sequence)
     timing = protocol.timing(fps)
     objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
     active = [b for b in BLOCKS if objs[b] is not None]
