@@ -17,8 +17,10 @@ seconds so velocities are px/s; Q entries are variance rates per second (Q = q d
 from __future__ import annotations
 
 import dataclasses
+import math
+import os
 import statistics
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal, Mapping, Sequence
 
 import numpy as np
@@ -29,6 +31,8 @@ from mata_eval.types import Box, Estimate, Motion, Stamped, TrackerOutput
 
 from . import ekf_math as em
 
+BACKENDS = ("auto", "numpy", "numba")
+BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for every preset
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
@@ -64,7 +68,7 @@ def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewm
     """Update the EWMA S_k = alpha P_k + (1 - alpha) S_{k-1} with the tracker confidence P_k and
     decide: accept unless S_k < tau_ewma or P_k dropped below S_k by more than tau_diff.
     The first confidence seeds the average (S_1 = P_1). Returns (S_k, accept)."""
-    if not np.isfinite(confidence):
+    if not math.isfinite(confidence):
         return ewma, False
     s = confidence if ewma is None else alpha * confidence + (1.0 - alpha) * ewma
     return s, bool(s >= tau_ewma and s - confidence <= tau_diff)
@@ -75,7 +79,7 @@ def relative_confidence(history: tuple[float, ...], confidence: float) -> float:
     by the median of the confidences it gave on the last accepted boxes (``history``, at most
     CONFIDENCE_HISTORY), capped at 1 (1 for the first output). Makes the paper's gate
     thresholds tracker-independent: absolute ones suit one tracker's confidence scale only."""
-    if not np.isfinite(confidence) or confidence <= 0:
+    if not math.isfinite(confidence) or confidence <= 0:
         return 0.0
     if not history:
         return 1.0
@@ -105,14 +109,16 @@ class FilterState:
         return self.gate.ewma
 
 
-@dataclass
 class _Tick:
-    t: float
-    dt: float
-    before: FilterState
-    after: FilterState | None = None
-    motions: list[Stamped[Motion]] = field(default_factory=list)
-    detections: list[Stamped[TrackerOutput]] = field(default_factory=list)
+    """One estimator tick: its time, dt since the previous one, the states before and after,
+    and the measurements assigned to it (replayed when a delayed one arrives)."""
+
+    __slots__ = ("t", "dt", "before", "after", "motions", "detections")
+
+    def __init__(self, t: float, dt: float, before: FilterState, after: FilterState | None = None):
+        self.t, self.dt, self.before, self.after = t, dt, before, after
+        self.motions: list[Stamped[Motion]] = []
+        self.detections: list[Stamped[TrackerOutput]] = []
 
 
 class HomographyEKF:
@@ -236,7 +242,12 @@ class HomographyEKF:
             unset = {k: v for k, v in PRESETS[self.preset].items() if getattr(self, k) is None}
             return dataclasses.replace(self, **unset)
 
-    def __init__(self, params: Params | None = None):
+    def __init__(self, params: Params | None = None, backend: str | None = None):
+        """``backend`` (or the environment variable MATA_EVAL_EKF_BACKEND): ``numba`` runs each
+        tick as one compiled function (ekf_kernels, the ``fast`` extra), ``numpy`` the reference
+        (ekf_math); ``auto`` (default) takes numba for preset ``mata`` when it is installed and
+        numpy for ``paper``, which then reproduces the published figures bit for bit (the two
+        agree to rounding, 1e-9 px: tests/test_ekf_kernels.py)."""
         self.params = p = (params if params is not None else self.Params()).resolved()
         self.n_deriv = N_DERIV[p.model]
         h_q = np.asarray(p.q_h, float) if p.camera else np.zeros(9)
@@ -247,6 +258,17 @@ class HomographyEKF:
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
+        self._kernel = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p.preset)
+        if self._kernel is not None:
+            self._cfg = self._kernel.config(
+                n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
+                gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
+                r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
+                p0_v=p.p0_v)
+            self._boxes = np.empty((4, 4))      # the used boxes of a tick (grown on demand)
+            self._confs = np.empty(4)
+            self._no_h = np.zeros((3, 3))
+            self._no_cov = np.zeros((9, 9))
 
     # --- interface ---------------------------------------------------------------------------
 
@@ -270,11 +292,14 @@ class HomographyEKF:
         if t > last.t + EPS_T:
             self._ticks.append(_Tick(float(t), float(t) - last.t, last.after))
         first = len(self._ticks) - 1
-        for kind, items in (("motions", motions), ("detections", detections)):
-            for item in items:
-                i = self._tick_index(item.t_capture, kind == "motions")
-                getattr(self._ticks[i], kind).append(item)
-                first = min(first, i)
+        for item in motions:
+            i = self._tick_index(item.t_capture, True)
+            self._ticks[i].motions.append(item)
+            first = min(first, i)
+        for item in detections:
+            i = self._tick_index(item.t_capture, False)
+            self._ticks[i].detections.append(item)
+            first = min(first, i)
         self._replay(first)
         self._trim()
         return self._estimate(self._ticks[-1].after)
@@ -320,12 +345,52 @@ class HomographyEKF:
         """One tick: H update(s), prediction over dt, corner update(s); measurements in capture
         order. Predicting is skipped when dt = 0 (the initial frame, or measurements added to an
         already-run tick)."""
+        if self._kernel is not None:
+            return self._tick_compiled(tick)
         with np.errstate(over="ignore", invalid="ignore"):  # a degenerate input is held below
             return self._tick_state(tick)
 
+    def _tick_compiled(self, tick: _Tick) -> FilterState:
+        """:meth:`_tick_state` with the algebra in one compiled call (ekf_kernels.tick): the
+        policy that needs no state (motion validity and composition, the confidence gate) is
+        decided here, exactly as the numpy path decides it."""
+        b = tick.before
+        kern = self._kernel
+        H, C, motion = self._no_h, self._no_cov, kern.MOTION_NONE
+        ms = tick.motions
+        if len(ms) == 1 and self.params.camera:     # validity tested in the kernel
+            m = ms[0].value
+            H = np.asarray(m.H, dtype=float)
+            if m.valid and H.shape == (3, 3):
+                motion = kern.MOTION_H
+                if m.cov is not None:
+                    C = np.asarray(m.cov, dtype=float)
+                    motion = kern.MOTION_H_COV if C.shape == (9, 9) else kern.MOTION_NONE
+        elif ms:
+            meas = self._motion_measurement(ms)
+            if meas is not None:
+                H, C = meas
+                motion = kern.MOTION_H if C is None else kern.MOTION_H_COV
+                C = self._no_cov if C is None else C
+        gate, k = b.gate, 0
+        dets = tick.detections
+        for d in (dets if len(dets) < 2 else sorted(dets, key=_t_capture)):
+            gate, conf = self._gate_detection(gate, d.value)
+            if conf is not None:
+                if k == len(self._confs):
+                    self._boxes = np.resize(self._boxes, (2 * k, 4))
+                    self._confs = np.resize(self._confs, 2 * k)
+                self._boxes[k] = d.value.box.corners()
+                self._confs[k] = conf
+                k += 1
+        x, P = np.empty_like(b.x), np.empty_like(b.P)
+        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used,
+                       H, C, motion, self._boxes, self._confs, k, x, P)
+        return FilterState(x, P, gate) if ok else b
+
     def _tick_state(self, tick: _Tick) -> FilterState:
         x, P, gate = tick.before.x, tick.before.P, tick.before.gate
-        motions = sorted(tick.motions, key=lambda s: s.t_capture)
+        motions = sorted(tick.motions, key=_t_capture)
         before = self.params.h_update == "before_predict"
         if before:
             x, P = self._update_motion(x, P, motions)
@@ -335,7 +400,7 @@ class HomographyEKF:
             x, P = fx, em.predict_cov(P, F, np.diag(self._process_noise(x) * tick.dt))
         if not before:
             x, P = self._update_motion(x, P, motions)
-        for det in sorted(tick.detections, key=lambda s: s.t_capture):
+        for det in sorted(tick.detections, key=_t_capture):
             x, P, gate = self._update_detection(x, P, gate, det.value)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             return tick.before  # numerically degenerate input (e.g. an absurd H): hold, never NaN
@@ -375,23 +440,10 @@ class HomographyEKF:
         """Block B: the motions of this tick composed into one (consecutive intervals), gated by
         validity and tau_sigma, then a partial update of the 9 homography entries. Invalid or
         rejected: no update, the H state is held (paper: H constant between measurements)."""
-        if not self.params.camera or not motions:
+        meas = self._motion_measurement(motions)
+        if meas is None:
             return x, P
-        H, C = None, None
-        for s in motions:
-            m = s.value
-            Hm = np.asarray(m.H, dtype=float)
-            if (not m.valid or Hm.shape != (3, 3) or not np.all(np.isfinite(Hm))
-                    or abs(Hm[2, 2]) < 1e-12):
-                return x, P
-            Cm = None if m.cov is None else np.asarray(m.cov, dtype=float)
-            if Cm is not None and (Cm.shape != (9, 9) or not np.all(np.isfinite(Cm))):
-                return x, P
-            Hm = em.normalise_h33(Hm)
-            if H is None:
-                H, C = Hm, Cm
-            else:
-                H, C = em.compose(H, C, Hm, Cm)
+        H, C = meas
         # validity: the box corners must stay in front of the camera (w > 0) under H
         for p in (x[em.TL], x[em.BR]):
             if H[2, 0] * p[0] + H[2, 1] * p[1] + H[2, 2] <= 1e-6:
@@ -402,6 +454,28 @@ class HomographyEKF:
                 return x, P
         return em.joseph_update_block(x, P, H.reshape(9), em.HOM, em.floored(C, self._h_floor))
 
+    def _motion_measurement(self, motions: Sequence[Stamped[Motion]]) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """The motions of a tick (in capture order) composed into one (H, C), H in the h33 = 1
+        chart; None without camera, without motions, or when one is invalid or not finite."""
+        if not self.params.camera or not motions:
+            return None
+        H, C = None, None
+        for s in motions:
+            m = s.value
+            Hm = np.asarray(m.H, dtype=float)
+            if (not m.valid or Hm.shape != (3, 3) or not np.all(np.isfinite(Hm))
+                    or abs(Hm[2, 2]) < 1e-12):
+                return None
+            Cm = None if m.cov is None else np.asarray(m.cov, dtype=float)
+            if Cm is not None and (Cm.shape != (9, 9) or not np.all(np.isfinite(Cm))):
+                return None
+            Hm = em.normalise_h33(Hm)
+            if H is None:
+                H, C = Hm, Cm
+            else:
+                H, C = em.compose(H, C, Hm, Cm)
+        return H, C
+
     def _update_detection(self, x: np.ndarray, P: np.ndarray, gate: GateState,
                           out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, GateState]:
         """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
@@ -410,25 +484,32 @@ class HomographyEKF:
         there locks a confidently wrong filter out of all later boxes). A non-finite or empty
         box is never used."""
         p = self.params
-        conf = float(out.confidence)
-        if p.gate == "relative":
-            conf = relative_confidence(gate.accepted, conf)
-        ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff)
-        if p.gate == "relative" and conf <= 0:
-            accept = False  # a tracker that found nothing says so with confidence 0
-        gate = dataclasses.replace(gate, ewma=ewma)
-        if not out.box.is_valid or (p.gating and not accept):
+        gate, conf = self._gate_detection(gate, out)
+        if conf is None:
             return x, P, gate
         z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
-        gate = dataclasses.replace(gate, n_used=gate.n_used + 1)
-        if p.gate == "relative":
-            kept = gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (float(out.confidence),)
-            gate = dataclasses.replace(gate, accepted=kept)
         return x, P, gate
+
+    def _gate_detection(self, gate: GateState, out: TrackerOutput) -> tuple[GateState, float | None]:
+        """Block A's gate (needs no state): the gate memory after this box and the confidence
+        its noise uses (relative with gate ``relative``), or None when the box is not used."""
+        p = self.params
+        conf = float(out.confidence)
+        if p.gate == "relative":
+            conf = relative_confidence(gate.accepted, conf)
+        ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff)
+        if p.gate == "relative" and conf <= 0:
+            accept = False  # a tracker that found nothing says so with confidence 0
+        if not out.box.is_valid or (p.gating and not accept):
+            return GateState(ewma, gate.accepted, gate.n_used), None
+        accepted = gate.accepted
+        if p.gate == "relative":
+            accepted = accepted[-(CONFIDENCE_HISTORY - 1):] + (float(out.confidence),)
+        return GateState(ewma, accepted, gate.n_used + 1), conf
 
     def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
@@ -442,9 +523,28 @@ class HomographyEKF:
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
         """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
-        x1, y1, x2, y2 = s.x[em.CORNERS]
+        x1, y1, x2, y2 = s.x[:4].tolist()
         cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
         return Estimate(Box.from_center(cx, cy, max(x2 - x1, 1.0), max(y2 - y1, 1.0)), s.P.copy())
+
+
+def _t_capture(s: Stamped) -> float:
+    return s.t_capture
+
+
+def _compiled_tick(backend: str, preset: str):
+    """The ekf_kernels module for the numba backend, or None for the numpy reference."""
+    if backend not in BACKENDS:
+        raise ValueError(f"homography_ekf: backend (or ${BACKEND_ENV}) must be one of {BACKENDS}, got {backend!r}")
+    if backend == "numpy" or (backend == "auto" and preset == "paper"):
+        return None
+    try:
+        from . import ekf_kernels
+    except ImportError:
+        if backend == "numba":
+            raise ImportError("homography_ekf: backend numba needs numba: pip install 'mata-eval[fast]'") from None
+        return None
+    return ekf_kernels
 
 
 @hookimpl

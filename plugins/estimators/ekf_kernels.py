@@ -1,0 +1,492 @@
+"""Block C's whole tick compiled with numba (the optional ``fast`` extra): the same arithmetic as
+the numpy reference in :mod:`ekf_math` and ``HomographyEKF._tick_state``, fused into one call.
+
+Why by hand: a tick is ~15k flops on 15x15 matrices, where numpy spends its time in call
+overhead (about 60 small operations, ~250 us); one compiled function over fixed loops does it in
+a few microseconds. What it exploits (paper eq. ekf_velocity_1 and the partial updates):
+
+- F is the identity on the 9 homography rows, so F P F^T only recomputes the 4 corner rows and
+  the derivative rows (``_predict``);
+- the measurements select state entries (4 corners, 9 homography entries): the Joseph form
+  (I - K E) P (I - K E)^T + K R K^T is expanded into products with K and the selected rows,
+  P - K B - B^T K^T + K S K^T with B = E P and S = E P E^T + R (``_joseph_block``);
+- only upper triangles are computed where the result is symmetrised anyway.
+
+Equal to the numpy path to rounding (tests/test_ekf_kernels.py: 1e-9 px over seeded ticks of
+both presets). Policy stays in Python (``HomographyEKF``): the confidence gate, the composition
+of several motions; the state-dependent tests (front of camera, tau_sigma, chi2 inflation) are
+here because they need the state mid-tick.
+
+The cache (``cache=True``) sits next to this file, or in the user's cache directory when the
+package is read-only; where neither is writable the kernel compiles once per process (~2 s).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numba
+import numpy as np
+
+# cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
+(C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
+ C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V) = range(13)
+N_CFG = 13
+# the motion input of a tick
+MOTION_NONE, MOTION_H, MOTION_H_COV = 0, 1, 2
+
+
+def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
+           r_box: float, r_box_rel: float, r_conf: bool, q_box_rel: float, follow: float, decay: float,
+           p0_v: float) -> np.ndarray:
+    """The ``cfg`` vector of :func:`tick` (HomographyEKF's resolved parameters)."""
+    cfg = np.empty(N_CFG)
+    cfg[[C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL, C_R_CONF,
+         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V]] = [
+        n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
+        follow, decay, p0_v]
+    return cfg
+
+
+def _njit(fn):
+    """numba.njit with IEEE semantics (no fastmath; x / 0 gives inf or nan, as numpy does) and
+    an on-disk cache; without a writable cache location, compiled per process, quietly."""
+    opts = dict(nogil=True, error_model="numpy")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return numba.njit(cache=True, **opts)(fn)
+    except RuntimeError:  # "no locator available": no writable cache directory
+        return numba.njit(**opts)(fn)
+
+
+# --- the homography projection g (ekf_math._uvw, _jp, _jh, _jpt) ------------------------------
+
+@_njit
+def _uvw(h, x, y):
+    w = h[6] * x + h[7] * y + h[8]
+    return (h[0] * x + h[1] * y + h[2]) / w, (h[3] * x + h[4] * y + h[5]) / w, w
+
+
+@_njit
+def _jp(h, u, v, w, out):
+    """out (2x2) = J_g at the point with image (u, v, w)."""
+    out[0, 0] = (h[0] - u * h[6]) / w
+    out[0, 1] = (h[1] - u * h[7]) / w
+    out[1, 0] = (h[3] - v * h[6]) / w
+    out[1, 1] = (h[4] - v * h[7]) / w
+
+
+@_njit
+def _jh(x, y, u, v, w, out):
+    """out (2x9) = dg/dh at (x, y)."""
+    a, b, c = x / w, y / w, 1.0 / w
+    for k in range(9):
+        out[0, k] = 0.0
+        out[1, k] = 0.0
+    out[0, 0], out[0, 1], out[0, 2] = a, b, c
+    out[1, 3], out[1, 4], out[1, 5] = a, b, c
+    out[0, 6], out[0, 7], out[0, 8] = -u * a, -u * b, -u * c
+    out[1, 6], out[1, 7], out[1, 8] = -v * a, -v * b, -v * c
+
+
+@_njit
+def _jpt(h, x, y, e0, e1, u, v, w, J, out):
+    """out (2x12) = [m | dm/dp | dm/dh] of m = J_g(p) e (ekf_math._jpt); J = J_g(p)."""
+    m0 = J[0, 0] * e0 + J[0, 1] * e1
+    m1 = J[1, 0] * e0 + J[1, 1] * e1
+    s = (h[6] * e0 + h[7] * e1) / w
+    g0, g1 = h[6] / w, h[7] / w
+    out[0, 0], out[1, 0] = m0, m1
+    out[0, 1] = -s * J[0, 0] - m0 * g0
+    out[0, 2] = -s * J[0, 1] - m0 * g1
+    out[1, 1] = -s * J[1, 0] - m1 * g0
+    out[1, 2] = -s * J[1, 1] - m1 * g1
+    r0, r1, r2 = (e0 - s * x) / w, (e1 - s * y) / w, -s / w
+    k0, k1 = (u * s - m0) / w, (v * s - m1) / w
+    for k in range(3, 12):
+        out[0, k] = 0.0
+        out[1, k] = 0.0
+    out[0, 3], out[0, 4], out[0, 5] = r0, r1, r2
+    out[1, 6], out[1, 7], out[1, 8] = r0, r1, r2
+    out[0, 9], out[0, 10], out[0, 11] = k0 * x - u * e0 / w, k0 * y - u * e1 / w, k0
+    out[1, 9], out[1, 10], out[1, 11] = k1 * x - v * e0 / w, k1 * y - v * e1 / w, k1
+
+
+@_njit
+def _box_side(x):
+    w, h = x[2] - x[0], x[3] - x[1]
+    return np.sqrt(max(w, 0.0)) * np.sqrt(max(h, 0.0))
+
+
+# --- small dense algebra ------------------------------------------------------------------------
+
+@_njit
+def _solve_into(S, B, out):
+    """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
+    a zero pivot gives inf / nan (held by the tick) where numpy would raise."""
+    m, k = S.shape[0], B.shape[1]
+    A = S.copy()
+    out[:, :] = B
+    for c in range(m):
+        p = c
+        for r in range(c + 1, m):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if p != c:
+            for j in range(m):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+            for j in range(k):
+                out[c, j], out[p, j] = out[p, j], out[c, j]
+        for r in range(c + 1, m):
+            f = A[r, c] / A[c, c]
+            if f != 0.0:
+                for j in range(c + 1, m):
+                    A[r, j] -= f * A[c, j]
+                for j in range(k):
+                    out[r, j] -= f * out[c, j]
+    for c in range(m - 1, -1, -1):
+        for j in range(k):
+            acc = out[c, j]
+            for i in range(c + 1, m):
+                acc -= A[c, i] * out[i, j]
+            out[c, j] = acc / A[c, c]
+
+
+@_njit
+def _joseph_block(x, P, z, s, R):
+    """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z))."""
+    n, m = x.shape[0], z.shape[0]
+    B = np.empty((m, n))                # E P = (P E^T)^T
+    for a in range(m):
+        for j in range(n):
+            B[a, j] = P[s + a, j]
+    S = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            S[a, b] = B[a, s + b] + R[a, b]
+    Kt = np.empty((m, n))
+    _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
+    r = z - x[s:s + m]                  # innovation, before x changes
+    for i in range(n):
+        acc = 0.0
+        for a in range(m):
+            acc += Kt[a, i] * r[a]
+        x[i] += acc
+    G = np.empty((m, n))                # (K S)^T = S K^T (S not exactly symmetric: use S^T)
+    for a in range(m):
+        for i in range(n):
+            acc = 0.0
+            for b in range(m):
+                acc += S[b, a] * Kt[b, i]
+            G[a, i] = acc
+    for i in range(n):
+        for j in range(i, n):
+            acc = P[i, j] + P[j, i]
+            for a in range(m):
+                acc += (G[a, i] - B[a, i]) * Kt[a, j] + (G[a, j] - B[a, j]) * Kt[a, i] \
+                    - Kt[a, i] * B[a, j] - B[a, i] * Kt[a, j]
+            P[i, j] = P[j, i] = 0.5 * acc
+
+
+@_njit
+def _mahalanobis2(nu, S):
+    m = nu.shape[0]
+    y = np.empty((m, 1))
+    _solve_into(S, nu.reshape((m, 1)), y)
+    acc = 0.0
+    for a in range(m):
+        acc += nu[a] * y[a, 0]
+    return acc
+
+
+# --- the stages of a tick ---------------------------------------------------------------------
+
+@_njit
+def _valid_motion(H, C, mode):
+    """Finite H with h33 != 0 (and a finite C): HomographyEKF._motion_measurement's tests."""
+    for i in range(3):
+        for j in range(3):
+            if not np.isfinite(H[i, j]):
+                return False
+    if abs(H[2, 2]) < 1e-12:
+        return False
+    if mode == MOTION_H_COV:
+        for i in range(9):
+            for j in range(9):
+                if not np.isfinite(C[i, j]):
+                    return False
+    return True
+
+
+@_njit
+def _update_motion(x, P, cfg, floor, H, C, mode):
+    """HomographyEKF._update_motion after the validity tests: front-of-camera and tau_sigma
+    gates, then the 9-value update with R = floored(C)."""
+    h33 = H[2, 2]
+    h = np.empty(9)
+    for k in range(9):
+        h[k] = H[k // 3, k % 3] / h33
+    for p0, p1 in ((x[0], x[1]), (x[2], x[3])):
+        if h[6] * p0 + h[7] * p1 + h[8] <= 1e-6:
+            return
+    if cfg[C_GATING] != 0.0 and mode == MOTION_H_COV:      # ekf_math.transferred_sigma
+        cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
+        u, v, w = _uvw(h, cx, cy)
+        G = np.empty((2, 9))
+        _jh(cx, cy, u, v, w, G)
+        GC = G @ C
+        a = b = c = 0.0
+        for k in range(9):
+            a += GC[0, k] * G[0, k]
+            b += 0.5 * (GC[0, k] * G[1, k] + GC[1, k] * G[0, k])
+            c += GC[1, k] * G[1, k]
+        top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
+        if not np.sqrt(max(top, 0.0)) <= cfg[C_TAU_SIGMA]:
+            return
+    R = np.zeros((9, 9))                                    # ekf_math.floored
+    for i in range(9):
+        if mode == MOTION_H_COV:
+            for j in range(9):
+                R[i, j] = 0.5 * (C[i, j] + C[j, i])
+        R[i, i] += max(floor[i] - R[i, i], 0.0)
+    _joseph_block(x, P, h, 4, R)
+
+
+@_njit
+def _velocity_prior(x, P, cfg, dt, n_used):
+    """HomographyEKF._velocity_prior: the follow prior until the first box, then the relaxation
+    towards 'still in the image' (ekf_math.image_static_velocity, velocity_mixture,
+    relax_velocity)."""
+    follow, tau = cfg[C_FOLLOW], cfg[C_DECAY]
+    if follow == 0.0 and tau == 0.0:
+        return
+    mix = n_used < 1 and follow > 0.0
+    relax = n_used >= 1 and tau > 0.0
+    if not (mix or relax):
+        return
+    h = x[4:13]
+    cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
+    u, v, w = _uvw(h, cx, cy)
+    J = np.empty((2, 2))
+    _jp(h, u, v, w, J)
+    r0, r1 = cx - u, cy - v
+    det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
+    v0 = (J[1, 1] * r0 - J[0, 1] * r1) / det / dt
+    v1 = (J[0, 0] * r1 - J[1, 0] * r0) / det / dt
+    n = x.shape[0]
+    if mix:
+        x[13], x[14] = follow * v0, follow * v1
+        for i in range(n):
+            P[13, i] = P[14, i] = P[i, 13] = P[i, 14] = 0.0
+        k = follow * (1.0 - follow)
+        P[13, 13] = cfg[C_P0_V] + k * (v0 * v0)
+        P[13, 14] = P[14, 13] = k * (v0 * v1)
+        P[14, 14] = cfg[C_P0_V] + k * (v1 * v1)
+    else:
+        a = np.exp(-dt / tau)
+        x[13] = v0 + a * (x[13] - v0)
+        x[14] = v1 + a * (x[14] - v1)
+        for i in range(n):
+            for j in (13, 14):
+                P[i, j] *= a
+                P[j, i] *= a     # the velocity block twice: a^2, as A P A^T
+
+
+@_njit
+def _local_scale(h, x, y, w, ds_dh):
+    """ekf_math._local_scale: s = sqrt|det H / w^3| and ds/dp; ds/dh written into ds_dh."""
+    c00 = h[4] * h[8] - h[5] * h[7]
+    c01 = h[5] * h[6] - h[3] * h[8]
+    c02 = h[3] * h[7] - h[4] * h[6]
+    det = h[0] * c00 + h[1] * c01 + h[2] * c02
+    s = np.sqrt(abs(det) / abs(w) ** 3)
+    # d ln|det H| / dH = H^-T = cofactor matrix / det
+    cof = (c00, c01, c02,
+           h[2] * h[7] - h[1] * h[8], h[0] * h[8] - h[2] * h[6], h[1] * h[6] - h[0] * h[7],
+           h[1] * h[5] - h[2] * h[4], h[2] * h[3] - h[0] * h[5], h[0] * h[4] - h[1] * h[3])
+    for k in range(9):
+        ds_dh[k] = s * (0.5 * (cof[k] / det))
+    ds_dh[6] = s * (0.5 * (cof[6] / det) - 1.5 * (x / w))
+    ds_dh[7] = s * (0.5 * (cof[7] / det) - 1.5 * (y / w))
+    ds_dh[8] = s * (0.5 * (cof[8] / det) - 1.5 * (1.0 / w))
+    return s, -1.5 * s / w * h[6], -1.5 * s / w * h[7]
+
+
+@_njit
+def _predict(x, P, cfg, q, dt):
+    """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place."""
+    n = x.shape[0]
+    nd = int(cfg[C_NDERIV])
+    h = x[4:13].copy()
+    x1, y1, x2, y2 = x[0], x[1], x[2], x[3]
+    cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
+    wdisp = np.empty(nd)                # ekf_math.taylor
+    T = np.zeros((nd, nd))
+    fact = 1.0
+    for i in range(nd):
+        fact *= i + 1
+        wdisp[i] = dt ** (i + 1) / fact
+    for j in range(nd):
+        f = 1.0
+        for i in range(j, nd):
+            if i > j:
+                f *= i - j
+            T[j, i] = dt ** (i - j) / f
+    uc, vc, wc = _uvw(h, cx, cy)
+    Jc = np.empty((2, 2))
+    _jp(h, uc, vc, wc, Jc)
+    M = np.empty((nd, 2, 12))
+    for i in range(nd):
+        _jpt(h, cx, cy, x[13 + 2 * i], x[14 + 2 * i], uc, vc, wc, Jc, M[i])
+    disp = np.zeros((2, 12))
+    ndv = np.zeros((nd, 2, 12))
+    for i in range(nd):
+        for r in range(2):
+            for k in range(12):
+                disp[r, k] += wdisp[i] * M[i, r, k]
+                for j in range(nd):
+                    ndv[j, r, k] += T[j, i] * M[i, r, k]
+    # Q rates, from the state before the transition (HomographyEKF._process_noise)
+    qd = q * dt
+    if cfg[C_Q_BOX_REL] != 0.0:
+        extra = (cfg[C_Q_BOX_REL] * _box_side(x)) ** 2
+        for i in range(4):
+            qd[i] = (q[i] + extra) * dt
+
+    F = np.zeros((n, n))
+    fx = np.empty(n)
+    Jh = np.empty((2, 9))
+    if cfg[C_CENTRE] == 0.0:            # ekf_math._corners_through_h
+        Jp = np.empty((2, 2))
+        for c, (px, py) in enumerate(((x1, y1), (x2, y2))):
+            u, v, w = _uvw(h, px, py)
+            fx[2 * c], fx[2 * c + 1] = u + disp[0, 0], v + disp[1, 0]
+            _jp(h, u, v, w, Jp)
+            _jh(px, py, u, v, w, Jh)
+            for r in range(2):
+                for k in range(2):
+                    F[2 * c + r, 2 * c + k] = Jp[r, k]
+                    for cc in range(2):
+                        F[2 * c + r, 2 * cc + k] += 0.5 * disp[r, 1 + k]
+                for k in range(9):
+                    F[2 * c + r, 4 + k] = Jh[r, k] + disp[r, 3 + k]
+    else:                               # ekf_math._centre_through_h
+        ds_dh = np.empty(9)
+        s, ds0, ds1 = _local_scale(h, cx, cy, wc, ds_dh)
+        e0, e1 = 0.5 * (x2 - x1), 0.5 * (y2 - y1)
+        c0, c1 = uc + disp[0, 0], vc + disp[1, 0]
+        fx[0], fx[1] = c0 - s * e0, c1 - s * e1
+        fx[2], fx[3] = c0 + s * e0, c1 + s * e1
+        _jh(cx, cy, uc, vc, wc, Jh)
+        e = (e0, e1)
+        ds = (ds0, ds1)
+        for r in range(2):
+            for k in range(2):
+                dc = Jc[r, k] + disp[r, 1 + k]
+                de = e[r] * ds[k]
+                sI = s if r == k else 0.0
+                F[r, k] = 0.5 * (dc - de) + 0.5 * sI
+                F[r, 2 + k] = 0.5 * (dc - de) - 0.5 * sI
+                F[2 + r, k] = 0.5 * (dc + de) - 0.5 * sI
+                F[2 + r, 2 + k] = 0.5 * (dc + de) + 0.5 * sI
+            for k in range(9):
+                dch = Jh[r, k] + disp[r, 3 + k]
+                deh = e[r] * ds_dh[k]
+                F[r, 4 + k] = dch - deh
+                F[2 + r, 4 + k] = dch + deh
+    for k in range(9):
+        fx[4 + k] = h[k]
+        F[4 + k, 4 + k] = 1.0
+    for j in range(nd):
+        fx[13 + 2 * j], fx[14 + 2 * j] = ndv[j, 0, 0], ndv[j, 1, 0]
+    for i in range(nd):
+        for r in range(2):
+            for k in range(2):
+                F[r, 13 + 2 * i + k] = F[2 + r, 13 + 2 * i + k] = wdisp[i] * Jc[r, k]
+    for j in range(nd):
+        for r in range(2):
+            for k in range(2):
+                F[13 + 2 * j + r, k] = F[13 + 2 * j + r, 2 + k] = 0.5 * ndv[j, r, 1 + k]
+            for k in range(9):
+                F[13 + 2 * j + r, 4 + k] = ndv[j, r, 3 + k]
+            for i in range(j, nd):
+                for k in range(2):
+                    F[13 + 2 * j + r, 13 + 2 * i + k] = T[j, i] * Jc[r, k]
+
+    # P = F P F^T + Q: F is the identity on the homography rows 4..12
+    moving = np.empty(n - 9, np.int64)
+    moving[:4] = np.arange(4)
+    moving[4:] = np.arange(13, n)
+    FP = P.copy()                       # rows 4..12 of F P are P's
+    for i in moving:
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += F[i, k] * P[k, j]
+            FP[i, j] = acc
+    for i in range(n):                  # (F P) F^T, then symmetrised
+        for j in range(n):
+            if 4 <= j < 13:
+                P[i, j] = FP[i, j]
+            else:
+                acc = 0.0
+                for k in range(n):
+                    acc += FP[i, k] * F[j, k]
+                P[i, j] = acc
+    for i in range(n):
+        P[i, i] += qd[i]
+        for j in range(i + 1, n):
+            P[i, j] = P[j, i] = 0.5 * (P[i, j] + P[j, i])
+    x[:] = fx
+
+
+@_njit
+def _update_box(x, P, cfg, z, conf):
+    """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
+    update."""
+    r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
+    if cfg[C_R_CONF] != 0.0:
+        r = r / max(conf, 0.1) ** 2
+    R = np.zeros((4, 4))
+    for a in range(4):
+        R[a, a] = r
+    if cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0:
+        nu = np.empty(4)
+        S = np.empty((4, 4))
+        for a in range(4):
+            nu[a] = z[a] - x[a]
+            for b in range(4):
+                S[a, b] = P[a, b] + R[a, b]
+        d2 = _mahalanobis2(nu, S)
+        if d2 > cfg[C_CHI2]:
+            R *= d2 / cfg[C_CHI2]
+    _joseph_block(x, P, z, 0, R)
+
+
+@_njit
+def tick(x0, P0, cfg, q, floor, dt, n_used, H, C, motion, Z, confs, n_boxes, x, P):
+    """One tick (HomographyEKF._tick_state): motion update (before or after the prediction),
+    velocity prior and prediction when dt > 0, the used boxes Z[:n_boxes] with their
+    confidences (as the box noise sees them). Writes x, P; returns False when the result is
+    not finite (the caller then holds the previous state)."""
+    x[:] = x0
+    P[:, :] = P0
+    use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)
+    before = cfg[C_H_BEFORE] != 0.0
+    if use_h and before:
+        _update_motion(x, P, cfg, floor, H, C, motion)
+    if dt > 0:
+        _velocity_prior(x, P, cfg, dt, n_used)
+        _predict(x, P, cfg, q, dt)
+    if use_h and not before:
+        _update_motion(x, P, cfg, floor, H, C, motion)
+    for b in range(n_boxes):
+        _update_box(x, P, cfg, Z[b], confs[b])
+    for i in range(x.shape[0]):
+        if not np.isfinite(x[i]):
+            return False
+        for j in range(x.shape[0]):
+            if not np.isfinite(P[i, j]):
+                return False
+    return True
