@@ -9,6 +9,7 @@ Conventions used everywhere in mata-eval:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Callable, Generic, Hashable, Mapping, TypeVar
@@ -62,7 +63,7 @@ class Box:
     @property
     def is_valid(self) -> bool:
         """Finite with positive width and height."""
-        return bool(np.all(np.isfinite(self.as_array())) and self.w > 0 and self.h > 0)
+        return bool(all(map(math.isfinite, (self.x, self.y, self.w, self.h))) and self.w > 0 and self.h > 0)
 
 
 class FrameImage(np.ndarray):

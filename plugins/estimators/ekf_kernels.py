@@ -28,6 +28,14 @@ import warnings
 import numba
 import numpy as np
 
+# The HomographyEKF parameters this kernel implements. A parameter added to the filter later is
+# not here until the kernel implements it: the filter then runs its numpy path (backend auto).
+IMPLEMENTS = frozenset({
+    "preset", "model", "camera", "gating", "gate", "alpha_ewma", "tau_ewma", "tau_diff", "chi2_gate",
+    "tau_sigma", "delay", "history_s", "follow_prior", "velocity_decay_s", "h_update", "box_motion",
+    "r_box", "r_box_rel", "r_confidence", "r_h_floor", "q_box", "q_box_rel", "q_h", "q_v", "q_a", "q_j",
+    "p0_box", "p0_h", "p0_v", "p0_a", "p0_j"})
+
 # cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
  C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V) = range(13)
@@ -124,7 +132,8 @@ def _box_side(x):
 @_njit
 def _solve_into(S, B, out):
     """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
-    a zero pivot gives inf / nan (held by the tick) where numpy would raise."""
+    a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
+    over whole rows of B (independent sums, which the compiler vectorises)."""
     m, k = S.shape[0], B.shape[1]
     A = S.copy()
     out[:, :] = B
@@ -146,47 +155,50 @@ def _solve_into(S, B, out):
                 for j in range(k):
                     out[r, j] -= f * out[c, j]
     for c in range(m - 1, -1, -1):
+        d = A[c, c]
         for j in range(k):
-            acc = out[c, j]
-            for i in range(c + 1, m):
-                acc -= A[c, i] * out[i, j]
-            out[c, j] = acc / A[c, c]
+            out[c, j] /= d
+        for r in range(c):
+            f = A[r, c]
+            for j in range(k):
+                out[r, j] -= f * out[c, j]
 
 
 @_njit
 def _joseph_block(x, P, z, s, R):
-    """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z))."""
+    """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z)).
+
+    With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
+    P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. The
+    loops run over rows (independent sums, which the compiler vectorises)."""
     n, m = x.shape[0], z.shape[0]
-    B = np.empty((m, n))                # E P = (P E^T)^T
-    for a in range(m):
-        for j in range(n):
-            B[a, j] = P[s + a, j]
-    S = np.empty((m, m))
-    for a in range(m):
-        for b in range(m):
-            S[a, b] = B[a, s + b] + R[a, b]
+    B = P[s:s + m, :].copy()            # m x n
+    S = B[:, s:s + m] + R
     Kt = np.empty((m, n))
     _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
-    r = z - x[s:s + m]                  # innovation, before x changes
-    for i in range(n):
-        acc = 0.0
-        for a in range(m):
-            acc += Kt[a, i] * r[a]
-        x[i] += acc
-    G = np.empty((m, n))                # (K S)^T = S K^T (S not exactly symmetric: use S^T)
+    Wt = np.empty((m, n))               # (K S / 2 - B^T)^T = S^T K^T / 2 - B
     for a in range(m):
-        for i in range(n):
-            acc = 0.0
-            for b in range(m):
-                acc += S[b, a] * Kt[b, i]
-            G[a, i] = acc
+        for j in range(n):
+            Wt[a, j] = -B[a, j]
+        for b in range(m):
+            f = 0.5 * S[b, a]
+            for j in range(n):
+                Wt[a, j] += f * Kt[b, j]
+    dx = np.zeros(n)
+    for a in range(m):
+        r = z[a] - x[s + a]
+        for j in range(n):
+            dx[j] += Kt[a, j] * r
+    T = np.zeros((n, n))
     for i in range(n):
+        for a in range(m):
+            f = Wt[a, i]
+            for j in range(n):
+                T[i, j] += f * Kt[a, j]
+    for i in range(n):
+        x[i] += dx[i]
         for j in range(i, n):
-            acc = P[i, j] + P[j, i]
-            for a in range(m):
-                acc += (G[a, i] - B[a, i]) * Kt[a, j] + (G[a, j] - B[a, j]) * Kt[a, i] \
-                    - Kt[a, i] * B[a, j] - B[a, i] * Kt[a, j]
-            P[i, j] = P[j, i] = 0.5 * acc
+            P[i, j] = P[j, i] = 0.5 * (P[i, j] + P[j, i]) + (T[i, j] + T[j, i])
 
 
 @_njit
@@ -235,7 +247,12 @@ def _update_motion(x, P, cfg, floor, H, C, mode):
         u, v, w = _uvw(h, cx, cy)
         G = np.empty((2, 9))
         _jh(cx, cy, u, v, w, G)
-        GC = G @ C
+        GC = np.zeros((2, 9))           # G C (no BLAS call for 2 x 9)
+        for r in range(2):
+            for k in range(9):
+                f = G[r, k]
+                for j in range(9):
+                    GC[r, j] += f * C[k, j]
         a = b = c = 0.0
         for k in range(9):
             a += GC[0, k] * G[0, k]
@@ -414,30 +431,38 @@ def _predict(x, P, cfg, q, dt):
                 for k in range(2):
                     F[13 + 2 * j + r, 13 + 2 * i + k] = T[j, i] * Jc[r, k]
 
-    # P = F P F^T + Q: F is the identity on the homography rows 4..12
+    # P = F P F^T + Q, symmetrised. F is the identity on the homography rows 4..12, so only the
+    # rows of the corners and derivatives ("moving") change: with Y = F P on those rows,
+    # entry (moving i, homography h) is Y_ih (= (F P F^T)_hi term by term, P symmetric).
     moving = np.empty(n - 9, np.int64)
     moving[:4] = np.arange(4)
     moving[4:] = np.arange(13, n)
-    FP = P.copy()                       # rows 4..12 of F P are P's
-    for i in moving:
-        for j in range(n):
-            acc = 0.0
-            for k in range(n):
-                acc += F[i, k] * P[k, j]
-            FP[i, j] = acc
-    for i in range(n):                  # (F P) F^T, then symmetrised
-        for j in range(n):
-            if 4 <= j < 13:
-                P[i, j] = FP[i, j]
-            else:
-                acc = 0.0
-                for k in range(n):
-                    acc += FP[i, k] * F[j, k]
-                P[i, j] = acc
+    nm = moving.shape[0]
+    Y = np.zeros((nm, n))
+    for a in range(nm):
+        for k in range(n):
+            f = F[moving[a], k]
+            for j in range(n):
+                Y[a, j] += f * P[k, j]
+    Ft = np.empty((n, nm))
+    for b in range(nm):
+        for k in range(n):
+            Ft[k, b] = F[moving[b], k]
+    Z = np.zeros((nm, nm))
+    for a in range(nm):
+        for k in range(n):
+            f = Y[a, k]
+            for b in range(nm):
+                Z[a, b] += f * Ft[k, b]
+    for a in range(nm):
+        i = moving[a]
+        for h in range(4, 13):
+            P[i, h] = P[h, i] = Y[a, h]
+        for b in range(a, nm):
+            j = moving[b]
+            P[i, j] = P[j, i] = 0.5 * (Z[a, b] + Z[b, a])
     for i in range(n):
         P[i, i] += qd[i]
-        for j in range(i + 1, n):
-            P[i, j] = P[j, i] = 0.5 * (P[i, j] + P[j, i])
     x[:] = fx
 
 

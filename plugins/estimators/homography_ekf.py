@@ -16,6 +16,7 @@ seconds so velocities are px/s; Q entries are variance rates per second (Q = q d
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 import os
@@ -74,17 +75,25 @@ def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewm
     return s, bool(s >= tau_ewma and s - confidence <= tau_diff)
 
 
-def relative_confidence(history: tuple[float, ...], confidence: float) -> float:
+def relative_confidence(history: tuple[float, ...], confidence: float, ranked: bool = False) -> float:
     """The confidence relative to the tracker's own typical value on this sequence: P_k divided
     by the median of the confidences it gave on the last accepted boxes (``history``, at most
     CONFIDENCE_HISTORY), capped at 1 (1 for the first output). Makes the paper's gate
-    thresholds tracker-independent: absolute ones suit one tracker's confidence scale only."""
+    thresholds tracker-independent: absolute ones suit one tracker's confidence scale only.
+    ``ranked``: ``history`` is in increasing order, so its median is read off without a sort."""
     if not math.isfinite(confidence) or confidence <= 0:
         return 0.0
     if not history:
         return 1.0
     # statistics.median: the same value as np.median, without numpy's overhead on 100 floats
-    return float(min(1.0, confidence / statistics.median(history)))
+    median = _median_of_ranked(history) if ranked else statistics.median(history)
+    return float(min(1.0, confidence / median))
+
+
+def _median_of_ranked(r: tuple[float, ...]) -> float:
+    """statistics.median of values already in increasing order (its formula, without the sort)."""
+    i = len(r) // 2
+    return r[i] if len(r) % 2 else (r[i - 1] + r[i]) / 2
 
 
 @dataclass(frozen=True)
@@ -94,6 +103,7 @@ class GateState:
     ewma: float | None = None
     accepted: tuple[float, ...] = ()
     n_used: int = 0  # boxes used since init
+    ranked: tuple[float, ...] = ()  # ``accepted`` in increasing order (a cheap median)
 
 
 @dataclass(frozen=True)
@@ -258,7 +268,7 @@ class HomographyEKF:
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
-        self._kernel = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p.preset)
+        self._kernel = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
         if self._kernel is not None:
             self._cfg = self._kernel.config(
                 n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
@@ -498,18 +508,23 @@ class HomographyEKF:
         """Block A's gate (needs no state): the gate memory after this box and the confidence
         its noise uses (relative with gate ``relative``), or None when the box is not used."""
         p = self.params
-        conf = float(out.confidence)
-        if p.gate == "relative":
-            conf = relative_confidence(gate.accepted, conf)
+        conf = raw = float(out.confidence)
+        relative = p.gate == "relative"
+        if relative:
+            conf = relative_confidence(gate.ranked, raw, ranked=True)
         ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff)
-        if p.gate == "relative" and conf <= 0:
+        if relative and conf <= 0:
             accept = False  # a tracker that found nothing says so with confidence 0
         if not out.box.is_valid or (p.gating and not accept):
-            return GateState(ewma, gate.accepted, gate.n_used), None
-        accepted = gate.accepted
-        if p.gate == "relative":
-            accepted = accepted[-(CONFIDENCE_HISTORY - 1):] + (float(out.confidence),)
-        return GateState(ewma, accepted, gate.n_used + 1), conf
+            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked), None
+        if not relative:
+            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked), conf
+        ranked = list(gate.ranked)
+        if len(gate.accepted) == CONFIDENCE_HISTORY:   # the oldest one leaves
+            del ranked[bisect.bisect_left(ranked, gate.accepted[0])]
+        bisect.insort(ranked, raw)
+        return GateState(ewma, gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (raw,), gate.n_used + 1,
+                         tuple(ranked)), conf
 
     def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
@@ -524,25 +539,31 @@ class HomographyEKF:
     def _estimate(s: FilterState) -> Estimate:
         """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
         x1, y1, x2, y2 = s.x[:4].tolist()
-        cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
-        return Estimate(Box.from_center(cx, cy, max(x2 - x1, 1.0), max(y2 - y1, 1.0)), s.P.copy())
+        w, h = max(x2 - x1, 1.0), max(y2 - y1, 1.0)
+        return Estimate(Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h), s.P.copy())
 
 
 def _t_capture(s: Stamped) -> float:
     return s.t_capture
 
 
-def _compiled_tick(backend: str, preset: str):
-    """The ekf_kernels module for the numba backend, or None for the numpy reference."""
+def _compiled_tick(backend: str, params: HomographyEKF.Params):
+    """The ekf_kernels module for the numba backend, or None for the numpy reference: with
+    ``auto``, numba for preset mata when it is installed and implements every parameter."""
     if backend not in BACKENDS:
         raise ValueError(f"homography_ekf: backend (or ${BACKEND_ENV}) must be one of {BACKENDS}, got {backend!r}")
-    if backend == "numpy" or (backend == "auto" and preset == "paper"):
+    if backend == "numpy" or (backend == "auto" and params.preset == "paper"):
         return None
     try:
         from . import ekf_kernels
     except ImportError:
         if backend == "numba":
             raise ImportError("homography_ekf: backend numba needs numba: pip install 'mata-eval[fast]'") from None
+        return None
+    missing = {f.name for f in dataclasses.fields(params)} - ekf_kernels.IMPLEMENTS
+    if missing:
+        if backend == "numba":
+            raise ValueError(f"homography_ekf: backend numba does not implement {sorted(missing)} yet; use numpy")
         return None
     return ekf_kernels
 

@@ -1,0 +1,152 @@
+"""Block C's compiled tick (numba, ekf_kernels.py) equals the numpy reference (ekf_math and
+HomographyEKF._tick_state) to rounding, and the filter runs without numba."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+
+import numpy as np
+import pytest
+
+from mata_eval.types import Box, Motion, Stamped, TrackerOutput
+from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
+
+P = HomographyEKF.Params
+FPS = 30.0
+numba = pytest.importorskip("numba", reason="the compiled tick needs the `fast` extra (numba)")
+from mata_eval_plugins.estimators import ekf_kernels  # noqa: E402  (needs numba)
+
+
+def scenario(seed: int, n: int = 90, delay: bool = False):
+    """Per tick: (t, motions, detections). A rolling, zooming, panning camera with measured
+    covariances and every kind of input the filter has to survive: boxes of varying confidence
+    (some rejected by the confidence gates), far outliers (chi2 inflation), invalid boxes
+    (NaN, zero width), invalid motions (flag, NaN, h33 = 0, a plane behind the camera, an
+    absurd H that overflows), covariances too large for tau_sigma, two motions in one tick
+    (composition), two boxes in one tick, and with ``delay`` boxes that arrive late."""
+    rng = np.random.default_rng(seed)
+    box = np.array([300.0, 200.0, 340.0, 230.0])
+    ticks, pending = [], []
+    for k in range(1, n):
+        t = k / FPS
+        a, s = rng.normal(0, 0.01), 1.0 + rng.normal(0, 0.004)
+        H = np.array([[s * np.cos(a), -s * np.sin(a), rng.normal(3.0, 2.0)],
+                      [s * np.sin(a), s * np.cos(a), rng.normal(-1.0, 2.0)],
+                      [rng.normal(0, 1e-6), rng.normal(0, 1e-6), 1.0]])
+        cov = np.diag(np.abs(rng.normal(0, [1e-7, 1e-7, 1e-2, 1e-7, 1e-7, 1e-2, 1e-13, 1e-13, 0.0])))
+        if k % 11 == 0:
+            cov = cov * 1e6                                     # tau_sigma rejects it
+        kind = k % 17
+        motion = Motion(H, None if k % 5 == 0 else cov, valid=kind != 3)
+        if kind == 6:
+            motion = Motion(np.full((3, 3), np.nan), cov)
+        elif kind == 9:
+            motion = Motion(np.array([[1.0, 0, 0], [0, 1.0, 0], [0, 0, 0.0]]), cov)
+        elif kind == 12:
+            motion = Motion(np.array([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 1.0]]), cov)  # w < 0 at the box
+        elif kind == 14:                                        # H / h33 overflows: the tick holds
+            motion = Motion(np.array([[1e300, 0, 0], [0, 1.0, 0], [0, 0, 1e-11]]), None)
+        motions = [Stamped(motion, t, t)]
+        if k % 13 == 0:                                         # two intervals in one tick
+            motions = [Stamped(Motion(H, cov), t - 0.5 / FPS, t - 0.5 / FPS), Stamped(Motion(H, cov), t, t)]
+        box = box + np.array([H[0, 2], H[1, 2], H[0, 2], H[1, 2]]) + rng.normal(0, 0.5, 4)
+        if k % 2 == 0:
+            conf = float(np.clip(0.7 + 0.25 * rng.normal(), 0, 1)) if k % 7 else 0.03  # R's floor
+            z = box + rng.normal(0, 2.0, 4)
+            if k % 19 == 0:
+                z = z + 80.0                                    # far outlier: chi2 inflation
+            if k % 23 == 0:
+                z = np.full(4, np.nan)
+            if k % 29 == 0:
+                z[2] = z[0]                                     # zero width
+            lag = rng.integers(0, 4) / FPS if delay else 0.0
+            pending.append(Stamped(TrackerOutput(Box.from_corners(*z), conf), t, t + lag))
+            if k % 31 == 0:
+                pending.append(Stamped(TrackerOutput(Box.from_corners(*(z + 1.0)), 0.9), t, t + lag))
+        dets = [d for d in pending if d.t_publish <= t + 1e-9]
+        pending = [d for d in pending if d.t_publish > t + 1e-9]
+        ticks.append((t, motions, dets))
+    return ticks
+
+
+def run(est: HomographyEKF, ticks) -> tuple[np.ndarray, np.ndarray]:
+    out = [est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)]
+    for t, motions, dets in ticks:
+        out.append(est.step(t, motions, dets))
+    return np.array([e.box.as_array() for e in out]), np.array([e.cov for e in out])
+
+
+CASES = [dict(), dict(delay="compensate"), dict(delay="ignore"), dict(h_update="after_predict"),
+         dict(model="ca"), dict(model="cj"), dict(gating=False), dict(camera=False),
+         dict(box_motion="corners"), dict(box_motion="centre")]
+
+
+@pytest.mark.parametrize("preset", ["mata", "paper"])
+@pytest.mark.parametrize("case", CASES, ids=lambda c: ",".join(f"{k}={v}" for k, v in c.items()) or "preset")
+def test_compiled_tick_equals_the_numpy_reference(preset, case):
+    for seed in range(3):
+        ticks = scenario(seed, delay=seed > 0)
+        ref = HomographyEKF(P(preset=preset, **case), backend="numpy")
+        ref_boxes, ref_covs = run(ref, ticks)
+        est = HomographyEKF(P(preset=preset, **case), backend="numba")
+        boxes, covs = run(est, ticks)
+        assert np.all(np.isfinite(boxes))
+        assert np.abs(boxes - ref_boxes).max() <= 1e-9          # px
+        assert np.abs(covs - ref_covs).max() <= 1e-9 * max(1.0, np.abs(ref_covs).max())
+        assert est.state.gate == ref.state.gate
+
+
+def test_the_scenario_exercises_what_it_claims():
+    """The degenerate inputs above do reach the filter's guards (else the equality is vacuous)."""
+    est = HomographyEKF(P(preset="mata"), backend="numpy")
+    ticks = scenario(0)
+    est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)
+    held = used = 0
+    for t, motions, dets in ticks:
+        before = est.state
+        est.step(t, motions, dets)
+        held += est.state.x is before.x
+        used += est.state.gate.n_used - before.gate.n_used
+    n_dets = sum(len(d) for _, _, d in ticks)
+    assert held >= 3                      # the overflowing H holds its tick (k = 14, 31, 48, ...)
+    assert 0 < used < n_dets              # some boxes used, some rejected (NaN, zero width, gate)
+
+
+def test_backend_choice(monkeypatch):
+    monkeypatch.delenv("MATA_EVAL_EKF_BACKEND", raising=False)
+    assert HomographyEKF(P(preset="mata"))._kernel is ekf_kernels      # auto: numba for mata
+    assert HomographyEKF(P(preset="paper"))._kernel is None            # auto: the reference for paper
+    assert HomographyEKF(P(preset="paper"), backend="numba")._kernel is ekf_kernels
+    monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "numpy")
+    assert HomographyEKF(P(preset="mata"))._kernel is None
+    monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "fortran")
+    with pytest.raises(ValueError, match="MATA_EVAL_EKF_BACKEND.*'fortran'"):
+        HomographyEKF()
+
+
+def test_a_parameter_the_kernel_does_not_implement_falls_back_to_numpy(monkeypatch):
+    monkeypatch.setattr(ekf_kernels, "IMPLEMENTS", ekf_kernels.IMPLEMENTS - {"q_v"})
+    assert HomographyEKF(P(preset="mata"))._kernel is None
+    with pytest.raises(ValueError, match=r"does not implement \['q_v'\]"):
+        HomographyEKF(P(preset="mata"), backend="numba")
+
+
+def test_the_kernel_implements_every_parameter():
+    """A parameter added to HomographyEKF.Params must be implemented in ekf_kernels (and
+    listed in IMPLEMENTS) or the default preset silently runs the slow path."""
+    assert {f.name for f in dataclasses.fields(P)} == set(ekf_kernels.IMPLEMENTS)
+
+
+def test_the_filter_runs_without_numba(monkeypatch):
+    """Without numba (a core install) the numpy path runs; asking for numba says what to install."""
+    monkeypatch.delenv("MATA_EVAL_EKF_BACKEND", raising=False)
+    monkeypatch.setitem(sys.modules, "numba", None)   # `import numba` raises ImportError
+    monkeypatch.delitem(sys.modules, "mata_eval_plugins.estimators.ekf_kernels")
+    monkeypatch.delattr(sys.modules["mata_eval_plugins.estimators"], "ekf_kernels")
+    est = HomographyEKF()
+    assert est._kernel is None
+    boxes, _ = run(est, scenario(0, n=20))
+    assert np.all(np.isfinite(boxes))
+    with pytest.raises(ImportError, match=r"pip install 'mata-eval\[fast\]'"):
+        HomographyEKF(backend="numba")
