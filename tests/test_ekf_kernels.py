@@ -147,3 +147,15 @@ def test_the_filter_runs_without_numba(monkeypatch):
     assert np.all(np.isfinite(boxes))
     with pytest.raises(ImportError, match=r"pip install 'mata-eval\[fast\]'"):
         HomographyEKF(backend="numba")
+
+
+def test_without_a_writable_cache_directory_the_kernel_compiles_quietly(monkeypatch, recwarn):
+    """A read-only install with no writable user cache: numba finds no cache locator; the
+    kernels then compile per process, without a warning."""
+    from numba.core import caching
+
+    monkeypatch.setattr(caching.CacheImpl, "_locator_classes", [])
+    add = ekf_kernels._njit(lambda a: a + 1.0)
+    assert add(1.0) == 2.0
+    assert isinstance(add._cache, caching.NullCache)
+    assert not [w for w in recwarn if "cache" in str(w.message).lower()]

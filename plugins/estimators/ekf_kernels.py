@@ -135,8 +135,12 @@ def _solve_into(S, B, out):
     a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
     over whole rows of B (independent sums, which the compiler vectorises)."""
     m, k = S.shape[0], B.shape[1]
-    A = S.copy()
-    out[:, :] = B
+    A = np.empty((m, m))
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = S[i, j]
+        for j in range(k):
+            out[i, j] = B[i, j]
     for c in range(m):
         p = c
         for r in range(c + 1, m):
@@ -144,9 +148,13 @@ def _solve_into(S, B, out):
                 p = r
         if p != c:
             for j in range(m):
-                A[c, j], A[p, j] = A[p, j], A[c, j]
+                t = A[c, j]
+                A[c, j] = A[p, j]
+                A[p, j] = t
             for j in range(k):
-                out[c, j], out[p, j] = out[p, j], out[c, j]
+                t = out[c, j]
+                out[c, j] = out[p, j]
+                out[p, j] = t
         for r in range(c + 1, m):
             f = A[r, c] / A[c, c]
             if f != 0.0:
@@ -172,8 +180,14 @@ def _joseph_block(x, P, z, s, R):
     P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. The
     loops run over rows (independent sums, which the compiler vectorises)."""
     n, m = x.shape[0], z.shape[0]
-    B = P[s:s + m, :].copy()            # m x n
-    S = B[:, s:s + m] + R
+    B = np.empty((m, n))                # E P: the measured rows
+    for a in range(m):
+        for j in range(n):
+            B[a, j] = P[s + a, j]
+    S = np.empty((m, m))
+    for a in range(m):
+        for b in range(m):
+            S[a, b] = B[a, s + b] + R[a, b]
     Kt = np.empty((m, n))
     _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
     Wt = np.empty((m, n))               # (K S / 2 - B^T)^T = S^T K^T / 2 - B
@@ -204,8 +218,11 @@ def _joseph_block(x, P, z, s, R):
 @_njit
 def _mahalanobis2(nu, S):
     m = nu.shape[0]
+    b = np.empty((m, 1))
+    for a in range(m):
+        b[a, 0] = nu[a]
     y = np.empty((m, 1))
-    _solve_into(S, nu.reshape((m, 1)), y)
+    _solve_into(S, b, y)
     acc = 0.0
     for a in range(m):
         acc += nu[a] * y[a, 0]
@@ -239,8 +256,8 @@ def _update_motion(x, P, cfg, floor, H, C, mode):
     h = np.empty(9)
     for k in range(9):
         h[k] = H[k // 3, k % 3] / h33
-    for p0, p1 in ((x[0], x[1]), (x[2], x[3])):
-        if h[6] * p0 + h[7] * p1 + h[8] <= 1e-6:
+    for c in range(2):
+        if h[6] * x[2 * c] + h[7] * x[2 * c + 1] + h[8] <= 1e-6:
             return
     if cfg[C_GATING] != 0.0 and mode == MOTION_H_COV:      # ekf_math.transferred_sigma
         cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
@@ -282,7 +299,9 @@ def _velocity_prior(x, P, cfg, dt, n_used):
     relax = n_used >= 1 and tau > 0.0
     if not (mix or relax):
         return
-    h = x[4:13]
+    h = np.empty(9)
+    for k in range(9):
+        h[k] = x[4 + k]
     cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
     u, v, w = _uvw(h, cx, cy)
     J = np.empty((2, 2))
@@ -319,14 +338,13 @@ def _local_scale(h, x, y, w, ds_dh):
     det = h[0] * c00 + h[1] * c01 + h[2] * c02
     s = np.sqrt(abs(det) / abs(w) ** 3)
     # d ln|det H| / dH = H^-T = cofactor matrix / det
-    cof = (c00, c01, c02,
-           h[2] * h[7] - h[1] * h[8], h[0] * h[8] - h[2] * h[6], h[1] * h[6] - h[0] * h[7],
-           h[1] * h[5] - h[2] * h[4], h[2] * h[3] - h[0] * h[5], h[0] * h[4] - h[1] * h[3])
-    for k in range(9):
-        ds_dh[k] = s * (0.5 * (cof[k] / det))
-    ds_dh[6] = s * (0.5 * (cof[6] / det) - 1.5 * (x / w))
-    ds_dh[7] = s * (0.5 * (cof[7] / det) - 1.5 * (y / w))
-    ds_dh[8] = s * (0.5 * (cof[8] / det) - 1.5 * (1.0 / w))
+    c10, c11, c12 = h[2] * h[7] - h[1] * h[8], h[0] * h[8] - h[2] * h[6], h[1] * h[6] - h[0] * h[7]
+    c20, c21, c22 = h[1] * h[5] - h[2] * h[4], h[2] * h[3] - h[0] * h[5], h[0] * h[4] - h[1] * h[3]
+    ds_dh[0], ds_dh[1], ds_dh[2] = s * (0.5 * (c00 / det)), s * (0.5 * (c01 / det)), s * (0.5 * (c02 / det))
+    ds_dh[3], ds_dh[4], ds_dh[5] = s * (0.5 * (c10 / det)), s * (0.5 * (c11 / det)), s * (0.5 * (c12 / det))
+    ds_dh[6] = s * (0.5 * (c20 / det) - 1.5 * (x / w))
+    ds_dh[7] = s * (0.5 * (c21 / det) - 1.5 * (y / w))
+    ds_dh[8] = s * (0.5 * (c22 / det) - 1.5 * (1.0 / w))
     return s, -1.5 * s / w * h[6], -1.5 * s / w * h[7]
 
 
@@ -335,7 +353,9 @@ def _predict(x, P, cfg, q, dt):
     """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place."""
     n = x.shape[0]
     nd = int(cfg[C_NDERIV])
-    h = x[4:13].copy()
+    h = np.empty(9)
+    for k in range(9):
+        h[k] = x[4 + k]
     x1, y1, x2, y2 = x[0], x[1], x[2], x[3]
     cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
     wdisp = np.empty(nd)                # ekf_math.taylor
@@ -365,7 +385,9 @@ def _predict(x, P, cfg, q, dt):
                 for j in range(nd):
                     ndv[j, r, k] += T[j, i] * M[i, r, k]
     # Q rates, from the state before the transition (HomographyEKF._process_noise)
-    qd = q * dt
+    qd = np.empty(n)
+    for i in range(n):
+        qd[i] = q[i] * dt
     if cfg[C_Q_BOX_REL] != 0.0:
         extra = (cfg[C_Q_BOX_REL] * _box_side(x)) ** 2
         for i in range(4):
@@ -376,7 +398,8 @@ def _predict(x, P, cfg, q, dt):
     Jh = np.empty((2, 9))
     if cfg[C_CENTRE] == 0.0:            # ekf_math._corners_through_h
         Jp = np.empty((2, 2))
-        for c, (px, py) in enumerate(((x1, y1), (x2, y2))):
+        for c in range(2):
+            px, py = x[2 * c], x[2 * c + 1]
             u, v, w = _uvw(h, px, py)
             fx[2 * c], fx[2 * c + 1] = u + disp[0, 0], v + disp[1, 0]
             _jp(h, u, v, w, Jp)
@@ -396,12 +419,11 @@ def _predict(x, P, cfg, q, dt):
         fx[0], fx[1] = c0 - s * e0, c1 - s * e1
         fx[2], fx[3] = c0 + s * e0, c1 + s * e1
         _jh(cx, cy, uc, vc, wc, Jh)
-        e = (e0, e1)
-        ds = (ds0, ds1)
         for r in range(2):
+            er = e0 if r == 0 else e1
             for k in range(2):
                 dc = Jc[r, k] + disp[r, 1 + k]
-                de = e[r] * ds[k]
+                de = er * (ds0 if k == 0 else ds1)
                 sI = s if r == k else 0.0
                 F[r, k] = 0.5 * (dc - de) + 0.5 * sI
                 F[r, 2 + k] = 0.5 * (dc - de) - 0.5 * sI
@@ -409,7 +431,7 @@ def _predict(x, P, cfg, q, dt):
                 F[2 + r, 2 + k] = 0.5 * (dc + de) + 0.5 * sI
             for k in range(9):
                 dch = Jh[r, k] + disp[r, 3 + k]
-                deh = e[r] * ds_dh[k]
+                deh = er * ds_dh[k]
                 F[r, 4 + k] = dch - deh
                 F[2 + r, 4 + k] = dch + deh
     for k in range(9):
@@ -434,10 +456,10 @@ def _predict(x, P, cfg, q, dt):
     # P = F P F^T + Q, symmetrised. F is the identity on the homography rows 4..12, so only the
     # rows of the corners and derivatives ("moving") change: with Y = F P on those rows,
     # entry (moving i, homography h) is Y_ih (= (F P F^T)_hi term by term, P symmetric).
-    moving = np.empty(n - 9, np.int64)
-    moving[:4] = np.arange(4)
-    moving[4:] = np.arange(13, n)
-    nm = moving.shape[0]
+    nm = n - 9
+    moving = np.empty(nm, np.int64)
+    for a in range(nm):
+        moving[a] = a if a < 4 else 9 + a
     Y = np.zeros((nm, n))
     for a in range(nm):
         for k in range(n):
@@ -463,7 +485,8 @@ def _predict(x, P, cfg, q, dt):
             P[i, j] = P[j, i] = 0.5 * (Z[a, b] + Z[b, a])
     for i in range(n):
         P[i, i] += qd[i]
-    x[:] = fx
+    for i in range(n):
+        x[i] = fx[i]
 
 
 @_njit
@@ -485,7 +508,10 @@ def _update_box(x, P, cfg, z, conf):
                 S[a, b] = P[a, b] + R[a, b]
         d2 = _mahalanobis2(nu, S)
         if d2 > cfg[C_CHI2]:
-            R *= d2 / cfg[C_CHI2]
+            f = d2 / cfg[C_CHI2]
+            for a in range(4):
+                for b in range(4):
+                    R[a, b] *= f
     _joseph_block(x, P, z, 0, R)
 
 
@@ -495,8 +521,11 @@ def tick(x0, P0, cfg, q, floor, dt, n_used, H, C, motion, Z, confs, n_boxes, x, 
     velocity prior and prediction when dt > 0, the used boxes Z[:n_boxes] with their
     confidences (as the box noise sees them). Writes x, P; returns False when the result is
     not finite (the caller then holds the previous state)."""
-    x[:] = x0
-    P[:, :] = P0
+    n = x0.shape[0]
+    for i in range(n):
+        x[i] = x0[i]
+        for j in range(n):
+            P[i, j] = P0[i, j]
     use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)
     before = cfg[C_H_BEFORE] != 0.0
     if use_h and before:
