@@ -98,10 +98,11 @@ class EgoMotion:
 
 
 class Estimator:
-    """Box x = the frame of its tick (t * fps); logs (tick frame, motion frames, detection frames)."""
+    """Box x = the frame of its tick (t * fps); logs (tick frame, motion frames, detection frames);
+    withholds feedback (``Estimate.feedback``) at the ticks in ``withhold``."""
 
-    def __init__(self, duration, fps):
-        self.duration, self.fps, self.ticks = duration, fps, []
+    def __init__(self, duration, fps, withhold=()):
+        self.duration, self.fps, self.ticks, self.withhold = duration, fps, [], set(withhold)
 
     def initialize(self, box, t):
         time.sleep(self.duration)
@@ -111,7 +112,7 @@ class Estimator:
         time.sleep(self.duration)
         k = round(t * self.fps)
         self.ticks.append((k, [int(m.value.H[0, 2]) for m in motions], [int(d.value.box.x) for d in detections]))
-        return Estimate(Box(float(k), 0.0, 10.0, 10.0))
+        return Estimate(Box(float(k), 0.0, 10.0, 10.0), feedback=k not in self.withhold)
 
 
 def starts(run, block):
@@ -181,7 +182,7 @@ def test_three_blocks_run_in_parallel_and_the_estimator_ticks_on_every_frame():
     # One worker running them in turn could not start the ego-motion on every frame while the
     # tracker sleeps 400-600 ms.
     def scenario():
-        tracker, est = OnSchedule(TRACKER_PUBLISH_AT), Estimator(0.010, FPS)
+        tracker, est = OnSchedule(TRACKER_PUBLISH_AT), Estimator(0.010, FPS, withhold={3})
         return run_live(sequence(8, FPS), tracker, EgoMotion(0.100), est, warmup=0), tracker, est
 
     every = np.arange(8) / FPS
@@ -202,9 +203,10 @@ def test_three_blocks_run_in_parallel_and_the_estimator_ticks_on_every_frame():
     # Frame k scores the estimate of tick k-1 (published at T_{k-1} + 10 ms); tick 0 is the init.
     assert run.source_frame.tolist() == [0, 0] + list(range(1, 7))
     # The tracker's prior is the newest estimate published before it starts: tick 1 (210 ms)
-    # for its start at 300 ms, tick 3 (610) for 700, tick 6 (1210) for 1300, tick 7 for 1500.
+    # for its start at 300 ms, tick 3 (610) for 700, tick 6 (1210) for 1300, tick 7 for 1500;
+    # tick 3 withholds it: no prior at 700 ms.
     priors = [p for _, p in tracker.calls[1:5]]
-    assert [p[0] - 5.0 for p in priors] == [1.0, 3.0, 6.0, 7.0]
+    assert [None if p is None else p[0] - 5.0 for p in priors] == [1.0, None, 6.0, 7.0]
 
 
 def test_time_scale_stretches_each_call():

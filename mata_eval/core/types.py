@@ -157,10 +157,22 @@ class Motion:
 
 @dataclass(frozen=True, eq=False)
 class Estimate:
-    """Block C's output: a box and, where the estimator has one, its state covariance."""
+    """Block C's output: a box, where the estimator has one its state covariance, and whether
+    the box's centre is fed back to the tracker as its search centre (paper L424; with
+    ``feedback: true``). An estimator withholds it (``feedback=False``) when it would not move
+    the tracker's search from where the tracker searches anyway: the tracker then gets no prior."""
 
     box: Box
     cov: np.ndarray | None = None
+    feedback: bool = True
+    search: tuple[float, float] | None = None
+
+    @property
+    def prior(self) -> tuple[float, float] | None:
+        """The search centre handed to the tracker: ``search`` or the box centre, None when withheld."""
+        if not self.feedback:
+            return None
+        return self.box.center if self.search is None else self.search
 
 
 @dataclass(frozen=True, eq=False)

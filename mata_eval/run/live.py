@@ -10,7 +10,7 @@ Model of time (docs/live.md):
   the frames published while it was busy are dropped, never queued (``skip`` in the trace).
   Egomotion: ``estimate(image)``, the motion from the previous frame *it* took. Tracker:
   ``track(image, prior)``, the prior being the centre of the newest estimate published before it
-  starts. Estimator: one tick per frame it takes, ``step(T_k, motions, detections)`` with every
+  starts (none when that estimate withholds it, ``Estimate.feedback``). Estimator: one tick per frame it takes, ``step(T_k, motions, detections)`` with every
   output published since its previous tick, oldest first, each ``Stamped(value, T_capture,
   t_publish)``.
 - **time_scale** ``s`` (one value or per block): a call whose work took ``d`` seconds publishes
@@ -243,8 +243,7 @@ def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], fl
                 if feedback:
                     est = bus.published("estimator")
                     if est:
-                        b = est[-1].value.box
-                        prior = (b.cx, b.cy)
+                        prior = est[-1].value.prior
                 call = lambda: obj.track(image, prior)  # noqa: E731
             else:
                 inputs = {}

@@ -22,7 +22,8 @@ Frame 0 initialises every block (tracker with the ground-truth box, egomotion wi
 estimator with the ground-truth box at t = 0); an initialisation is a call like any other (its
 latency occupies the block) and publishes nothing new: the initial box is held until the first
 output. With an estimator and ``feedback``, the tracker's prior at each start is the centre of the
-estimator's newest estimate visible then (at frame k: the estimate of frame k). The estimator is handed, at each of its ticks, the
+estimator's newest estimate visible then (at frame k: the estimate of frame k), or none when
+that estimate withholds it (``Estimate.feedback``). The estimator is handed, at each of its ticks, the
 outputs that became visible to it since its previous tick, each ``Stamped(value, t_capture,
 t_publish)`` with ``t_publish`` the time it reached the estimator (the paper's ``delay: ignore``
 is the estimator's business).
@@ -394,8 +395,7 @@ def sequence_steps(
         if feedback and estimator is not None:
             i = boards["estimator"].visible(t, d_est_trk)
             if i:
-                est_box = boards["estimator"].values[i - 1].box
-                return (est_box.cx, est_box.cy)
+                return boards["estimator"].values[i - 1].prior
         return None
 
     def publish(b: str, k: int, t_start: float, value: Any, wall: float, first: bool) -> float:

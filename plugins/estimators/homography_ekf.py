@@ -193,6 +193,15 @@ class HomographyEKF:
         velocity_decay_s: float | None = _preset_param(
             "velocity_decay_s", "time constant (s) of the own velocity's relaxation towards keeping "
             "the target still in the image once boxes are used; 0 = none (paper)")
+        feedback_shift: float = param(
+            0.0, "with feedback, hand the tracker a search centre only when it lies more than "
+            "this fraction of the tracker's newest box (its width in x, height "
+            "in y) from that box's centre, where the tracker searches without a prior (0.5: "
+            "outside that box); 0 = always (paper L424; docs/mata.md gives the measurements)")
+        feedback_carry: bool = param(
+            False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
+            "that box moved by the filter's predicted motion since its capture instead of the "
+            "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
         h_update: Literal["before_predict", "after_predict"] = param(
             "before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
         box_motion: Literal["corners", "centre"] | None = _preset_param(
@@ -238,7 +247,8 @@ class HomographyEKF:
             if not self.history_s > 0:
                 raise ValueError(f"homography_ekf: `history_s` must be positive, got {self.history_s}")
             for key in ("q_box", "q_box_rel", "q_v", "q_a", "q_j", "p0_box", "p0_v", "p0_a", "p0_j",
-                        "tau_sigma", "r_box_rel", "chi2_gate", "velocity_decay_s", "follow_prior"):
+                        "tau_sigma", "r_box_rel", "chi2_gate", "velocity_decay_s", "follow_prior",
+                        "feedback_shift"):
                 v = getattr(self, key)
                 if v is not None and not v >= 0:
                     raise ValueError(f"homography_ekf: `{key}` must be >= 0, got {v}")
@@ -279,6 +289,8 @@ class HomographyEKF:
             self._confs = np.empty(4)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
+        self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
+        self._newest_fit: tuple[float, float] | None = None  # the posterior centre where the filter used it
 
     # --- interface ---------------------------------------------------------------------------
 
@@ -290,6 +302,8 @@ class HomographyEKF:
         x[em.HOM] = np.eye(3).reshape(9)
         start = FilterState(x, self._p0.copy(), GateState())
         self._ticks = [_Tick(float(t), 0.0, start, start)]
+        self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
+        self._newest_fit = None
         return self._estimate(start)
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
@@ -312,7 +326,8 @@ class HomographyEKF:
             first = min(first, i)
         self._replay(first)
         self._trim()
-        return self._estimate(self._ticks[-1].after)
+        self._note_newest_box(detections)
+        return self._with_feedback(self._estimate(self._ticks[-1].after))
 
     @property
     def state(self) -> FilterState:
@@ -534,6 +549,36 @@ class HomographyEKF:
         if p.r_confidence:
             r = r / max(relative_conf, 0.1) ** 2
         return np.eye(4) * r
+
+    def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
+        """Keep the tracker's newest box by capture time (where it searches without a prior)
+        and, when the filter used it, the posterior centre of its tick (for ``feedback_carry``)."""
+        for det in detections:
+            if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
+                self._newest, self._newest_fit = det, None
+                tick = next(k for k in reversed(self._ticks) if any(d is det for d in k.detections))
+                if tick.after.gate.n_used > tick.before.gate.n_used:
+                    x1, y1, x2, y2 = tick.after.x[em.CORNERS]
+                    self._newest_fit = (0.5 * (x1 + x2), 0.5 * (y1 + y2))
+
+    def _with_feedback(self, est: Estimate) -> Estimate:
+        """What is fed back to the tracker (beyond the paper, whose L424 feeds every estimate's
+        centre back; docs/mata.md). ``feedback_carry``: when the filter used the tracker's newest
+        box, the search centre is that box moved by the filter's predicted motion since its
+        capture (camera and own motion: what the tracker cannot see), not the estimate, which
+        also carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed
+        back when that centre lies within f of the newest box (its width in x, height in y),
+        where the tracker searches anyway."""
+        b = self._newest.value.box
+        if self.params.feedback_carry and self._newest_fit is not None:
+            fx, fy = self._newest_fit
+            est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
+        f = self.params.feedback_shift
+        if not f:
+            return est
+        cx, cy = est.prior
+        shift = max(abs(cx - b.cx) / b.w, abs(cy - b.cy) / b.h)
+        return est if shift > f else dataclasses.replace(est, feedback=False)
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:

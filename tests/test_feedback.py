@@ -1,0 +1,167 @@
+"""What MATA hands its tracker (paper L424): an estimate's ``feedback`` flag decides whether the
+scheduler gives the tracker that estimate's centre as its search centre, and ``homography_ekf``
+withholds it, with ``feedback_shift``, when it would not move the tracker's search out of its
+own newest box. Checked on hand-built timelines: a camera pan of known size against the box."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mata_eval.core.sequence import Sequence
+from mata_eval.run.scheduler import run_sequence
+from mata_eval.types import Box, Estimate, Motion, Stamped, TrackerOutput
+from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
+from mata_eval_plugins.protocols.eop import EOP
+from mata_eval_plugins.protocols.ltp import LTP
+
+BOX = Box(90.0, 95.0, 20.0, 10.0)  # centre (100, 100), 20 x 10 px
+FPS = 30.0
+
+
+def test_estimate_prior_is_its_centre_unless_withheld():
+    assert Estimate(BOX).prior == (100.0, 100.0)
+    assert Estimate(BOX, feedback=False).prior is None
+
+
+class FlagEstimator:
+    """Estimate x = frame of the tick; withholds feedback at the frames in ``withhold``."""
+
+    def __init__(self, withhold):
+        self.withhold = set(withhold)
+
+    def initialize(self, box, t):
+        return Estimate(box)
+
+    def step(self, t, motions=(), detections=()):
+        k = round(t * FPS)
+        return Estimate(Box(float(k), 0.0, 10.0, 10.0), feedback=k not in self.withhold)
+
+
+class RecordingTracker:
+    """Logs (frame seen, prior); its box never moves."""
+
+    def __init__(self):
+        self.calls = []
+
+    def initialize(self, image, box):
+        pass
+
+    def track(self, image, prior=None):
+        self.calls.append((int(image[0, 0, 0]), prior))
+        return TrackerOutput(BOX, confidence=0.9)
+
+
+def toy_sequence(n):
+    return Sequence("toy", np.tile(BOX.as_array(), (n, 1)), fps=FPS,
+                    loader=lambda k: np.full((2, 2, 3), k, np.uint8))
+
+
+def test_scheduler_hands_no_prior_when_the_estimate_withholds_it():
+    # EOP at 10 Hz: the tracker starts at frames 3, 6, 9 with the estimate of that frame (the
+    # estimator ticks on every frame, before the tracker); frame 6's estimate withholds it.
+    tracker = RecordingTracker()
+    run_sequence(toy_sequence(12), tracker, None, FlagEstimator({6}), EOP(EOP.Params(tracker_hz=10.0)),
+                 np.random.default_rng(0))
+    assert [k for k, _ in tracker.calls] == [3, 6, 9]
+    assert [p for _, p in tracker.calls] == [(8.0, 5.0), None, (14.0, 5.0)]
+
+
+class PanEgoMotion:
+    """The camera pans by ``pan[k]`` px in x between frames k-1 and k (a pure translation)."""
+
+    def __init__(self, pan):
+        self.pan = pan
+
+    def initialize(self, image):
+        pass
+
+    def estimate(self, image):
+        H = np.eye(3)
+        H[0, 2] = self.pan.get(int(image[0, 0, 0]), 0.0)
+        return Motion(H, cov=np.eye(9) * 1e-12)
+
+
+class WorldStillTracker(RecordingTracker):
+    """Returns the target where a world-still target is after the pans so far (exact box)."""
+
+    def __init__(self, pan):
+        super().__init__()
+        self.pan = pan
+
+    def track(self, image, prior=None):
+        k = int(image[0, 0, 0])
+        self.calls.append((k, prior))
+        dx = sum(v for f, v in self.pan.items() if f <= k)
+        return TrackerOutput(Box(BOX.x + dx, BOX.y, BOX.w, BOX.h), confidence=0.9)
+
+
+@pytest.mark.parametrize("shift, fed", [(0.0, [1, 2, 3, 4, 5, 6, 7]), (0.5, [4, 6])])
+def test_a_pan_larger_than_half_the_box_is_fed_back_a_smaller_one_is_not(shift, fed):
+    # LTP, camera still except pans of 15 px (0.75 of the 20 px box width) before frames 4 and 6
+    # and of 5 px (0.25) before frame 7; the target is still in the world, so the estimate of
+    # frame k (the camera motion up to k applied to the box of frame k-1) is the tracker's
+    # newest box moved by the pan. With feedback_shift 0.5 only the 15 px pans move the search
+    # out of that box; the paper (0) feeds every estimate back.
+    pan = {4: 15.0, 6: 15.0, 7: 5.0}
+    tracker = WorldStillTracker(pan)
+    est = HomographyEKF(HomographyEKF.Params(preset="paper", feedback_shift=shift))
+    run_sequence(toy_sequence(8), tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
+    assert [k for k, p in tracker.calls if p is not None] == fed
+    for k, p in tracker.calls:
+        if p is not None:  # the prior is the estimate: the world-still target after the pans
+            assert p[0] == pytest.approx(100.0 + sum(v for f, v in pan.items() if f <= k), abs=0.5)
+            assert p[1] == pytest.approx(100.0, abs=0.5)
+
+
+def test_the_reference_is_the_trackers_newest_box_by_capture_time():
+    # A box that arrives late (captured at 0.1 s, after one captured at 0.2 s) is not where the
+    # tracker searches next: the shift is measured from the box of 0.2 s, 30 px (1.5 box
+    # widths) from the initial box, which the estimate follows.
+    est = HomographyEKF(HomographyEKF.Params(feedback_shift=0.5))
+    est.initialize(BOX, 0.0)
+    newest = Box(BOX.x + 30.0, BOX.y, BOX.w, BOX.h)
+
+    def det(box, t_capture):
+        return Stamped(TrackerOutput(box, confidence=0.9), t_capture, 0.2)
+
+    for out in (est.step(0.2, (), [det(newest, 0.2)]), est.step(0.2, (), [det(BOX, 0.1)])):
+        assert abs(out.box.cx - newest.cx) < 0.5 * BOX.w < abs(out.box.cx - BOX.cx)
+        assert not out.feedback
+
+
+@pytest.mark.parametrize("preset", ["paper", "mata"])
+def test_carry_hands_the_trackers_box_moved_by_the_camera_not_the_smoothed_estimate(preset):
+    # The filter starts 10 px left of a world-still target whose exact box the tracker returns
+    # every frame while the camera pans 15 px per frame; with a large R (20 px std) the
+    # estimate needs frames to reach the boxes. The truth at frame k is 100 + 15 k px. Carried,
+    # the search centre is the previous exact box moved by the pan: within 2.5 px of the truth
+    # (what is left is the velocity the filter infers from its own lag); the estimate is 9 px
+    # off at frame 2 and 6 px at frame 3 (frame 1 has no box yet).
+    pan = {k: 15.0 for k in range(1, 10)}
+    start = Box(BOX.x - 10.0, BOX.y, BOX.w, BOX.h)
+    seq = Sequence("toy", np.tile(start.as_array(), (10, 1)), fps=FPS,
+                   loader=lambda k: np.full((2, 2, 3), k, np.uint8))
+    errors = {}
+    for carry in (False, True):
+        tracker = WorldStillTracker(pan)
+        still = {} if preset == "paper" else dict(follow_prior=0.0, velocity_decay_s=0.0)
+        est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry, **still))
+        run_sequence(seq, tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
+        errors[carry] = [p[0] - (100.0 + 15.0 * k) for k, p in tracker.calls]
+        assert all(abs(p[1] - 100.0) < 0.5 for _, p in tracker.calls)
+    assert errors[False][0] == errors[True][0] == pytest.approx(-10.0, abs=0.5)  # no box yet at frame 1
+    assert max(abs(e) for e in errors[True][1:]) < 2.5
+    assert abs(errors[False][1]) > 8.0 and abs(errors[False][2]) > 5.0
+
+
+def test_carry_only_a_box_the_filter_used():
+    # At the tick of a box, the carried search centre is that box's centre (no motion since);
+    # a box the gate rejects (confidence 0: "found nothing") is not carried: the estimate is.
+    far = Box(BOX.x + 40.0, BOX.y, BOX.w, BOX.h)
+    for confidence, search in ((0.9, far.center), (0.0, None)):
+        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True))
+        est.initialize(BOX, 0.0)
+        out = est.step(0.1, (), [Stamped(TrackerOutput(far, confidence), 0.1, 0.1)])
+        assert out.search == (pytest.approx(search) if search else None)
+        assert out.prior == pytest.approx(search or out.box.center)
