@@ -157,10 +157,10 @@ class Motion:
 
 @dataclass(frozen=True, eq=False)
 class Estimate:
-    """Block C's output: a box, where the estimator has one its state covariance, and whether
-    the box's centre is fed back to the tracker as its search centre (paper L424; with
-    ``feedback: true``). An estimator withholds it (``feedback=False``) when it would not move
-    the tracker's search from where the tracker searches anyway: the tracker then gets no prior."""
+    """Block C's output: a box, where the estimator has one its state covariance, and what is
+    fed back to the tracker as its search centre (paper L424; with ``feedback: true``): the box
+    centre, or ``search`` where the estimator hands out another centre, or nothing when it
+    withholds it (``feedback=False``: the tracker then searches where it would alone)."""
 
     box: Box
     cov: np.ndarray | None = None

@@ -9,10 +9,10 @@ Model of time (docs/live.md):
 - **Blocks** run each in its own thread. A block that is free takes the newest published frame;
   the frames published while it was busy are dropped, never queued (``skip`` in the trace).
   Egomotion: ``estimate(image)``, the motion from the previous frame *it* took. Tracker:
-  ``track(image, prior)``, the prior being the centre of the newest estimate published before it
-  starts (none when that estimate withholds it, ``Estimate.feedback``). Estimator: one tick per frame it takes, ``step(T_k, motions, detections)`` with every
-  output published since its previous tick, oldest first, each ``Stamped(value, T_capture,
-  t_publish)``.
+  ``track(image, prior)``, the prior being the search centre of the newest estimate published
+  before it starts (``Estimate.prior``: its centre, or none when it withholds it). Estimator: one
+  tick per frame it takes, ``step(T_k, motions, detections)`` with every output published since
+  its previous tick, oldest first, each ``Stamped(value, T_capture, t_publish)``.
 - **time_scale** ``s`` (one value or per block): a call whose work took ``d`` seconds publishes
   ``s d`` after it started; the worker sleeps ``(s - 1) d`` (a device ``s`` times slower, each block
   on its own core; the sleep leaves the CPU to the other blocks).

@@ -21,9 +21,9 @@ visible at ``t_k``: a zero-order hold.
 Frame 0 initialises every block (tracker with the ground-truth box, egomotion with image 0,
 estimator with the ground-truth box at t = 0); an initialisation is a call like any other (its
 latency occupies the block) and publishes nothing new: the initial box is held until the first
-output. With an estimator and ``feedback``, the tracker's prior at each start is the centre of the
-estimator's newest estimate visible then (at frame k: the estimate of frame k), or none when
-that estimate withholds it (``Estimate.feedback``). The estimator is handed, at each of its ticks, the
+output. With an estimator and ``feedback``, the tracker's prior at each start is the search centre
+of the estimator's newest estimate visible then (at frame k: the estimate of frame k;
+``Estimate.prior``: its centre, another centre it names, or none when it withholds it). The estimator is handed, at each of its ticks, the
 outputs that became visible to it since its previous tick, each ``Stamped(value, t_capture,
 t_publish)`` with ``t_publish`` the time it reached the estimator (the paper's ``delay: ignore``
 is the estimator's business).

@@ -326,8 +326,11 @@ class HomographyEKF:
             first = min(first, i)
         self._replay(first)
         self._trim()
-        self._note_newest_box(detections)
-        return self._with_feedback(self._estimate(self._ticks[-1].after))
+        est = self._estimate(self._ticks[-1].after)
+        if self.params.feedback_carry or self.params.feedback_shift:
+            self._note_newest_box(detections)
+            est = self._with_feedback(est)
+        return est
 
     @property
     def state(self) -> FilterState:
@@ -556,8 +559,8 @@ class HomographyEKF:
         for det in detections:
             if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
                 self._newest, self._newest_fit = det, None
-                tick = next(k for k in reversed(self._ticks) if any(d is det for d in k.detections))
-                if tick.after.gate.n_used > tick.before.gate.n_used:
+                tick = next((k for k in reversed(self._ticks) if any(d is det for d in k.detections)), None)
+                if tick is not None and tick.after.gate.n_used > tick.before.gate.n_used:
                     x1, y1, x2, y2 = tick.after.x[em.CORNERS]
                     self._newest_fit = (0.5 * (x1 + x2), 0.5 * (y1 + y2))
 
