@@ -120,7 +120,7 @@ def test_staged_tree_gives_occlusion_flags_and_nan_rows(seed, kind):
     clear = np.flatnonzero(r.occluded == 0)
     full = np.median([masks[k].sum() for k in clear])
     for k in np.flatnonzero(hidden):
-        assert masks[k].sum() <= 0.05 * full, k
+        assert masks[k].sum() <= max(0.05 * full, 2), k  # (a 13 px target at 160x120: 2 edge pixels)
         assert nan[k], k
     # partially covered frames: fewer target pixels drawn than when it is in the open
     part = np.flatnonzero((r.occluded > 0.3) & (r.occluded < 0.9))
@@ -314,24 +314,29 @@ def test_legacy_motion_reproduces_generator_v3():
 
 
 #: UAV123 (123 sequences, ../shared/data/annotations/UAV123, `python benchmarks/oracle.py`):
-#: median centre shift / sqrt(wh) over 1, 3, 10 frames and the fraction of 3-frame pairs with
-#: IoU < 0.5 (issue 15 quotes 0.083 and 15.3 %; test_motion_stats.py recomputes them).
+#: median centre shift / sqrt(wh) over 1, 3, 10 frames, the fraction of 3-frame pairs with
+#: IoU < 0.5 (issue 15 quotes 0.083 and 15.3 %; test_motion_stats.py recomputes them) and the
+#: perfect tracker's NT2F at EOP@10Hz (profile default; 56.0 with the valid-frame reading,
+#: which test_motion_stats.py reproduces).
 UAV123_SHIFT = {1: 0.0305, 3: 0.0833, 10: 0.2532}
 UAV123_IOU3_BELOW_HALF = 0.1527
+UAV123_ORACLE_NT2F10 = 0.562
 
 
-def _small_suite(motion_name: str) -> list:
+def _small_suite(motion_name: str, n_frames: int) -> list:
     from mata_eval.core.sequence import Sequence
     from mata_eval.data.synth.render import render
 
     return [Sequence(sp.name, render(sp, lambda k, img: None).groundtruth, sp.fps)
-            for sp in synth.suite_specs(20, 150, 160, 90, seed=0, motion=motion_name)]
+            for sp in synth.suite_specs(20, n_frames, 160, 90, seed=0, motion=motion_name)]
 
 
-def test_default_motion_moves_like_uav123_and_latency_costs():
-    """20 short sequences: target shifts within 25 % of UAV123's medians, IoU < 0.5 pairs within
-    35 %, and the perfect tracker loses NT2F at 10 Hz (one-period latency) against 30 Hz. The
-    legacy camera, which pursues the target tightly, fails all of it."""
+def test_default_suite_moves_like_uav123_and_latency_costs():
+    """The default suite (20 x 300 frames, seed 0; rendered at 160x90, the statistics do not
+    depend on the render size): target shifts, IoU < 0.5 pairs and the perfect tracker's NT2F
+    at 10 Hz within 15 % of UAV123's, and 10 Hz costs the perfect tracker more than 0.15 NT2F
+    against 30 Hz. (Generator 4's default suite missed NT2F@10 by +18 %; the legacy camera,
+    which pursues the target tightly, fails all of it.)"""
     from mata_eval.core.registry import load_registry
     from mata_eval.score.metrics import summarize
     from mata_eval.score.motion_stats import target_motion
@@ -343,17 +348,62 @@ def test_default_motion_moves_like_uav123_and_latency_costs():
         m = target_motion(s.groundtruth for s in seqs)
         n30 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=30)))).nt2f
         n10 = summarize(oracle_scores(seqs, eop(eop.Params(tracker_hz=10)))).nt2f
-        return m, n30 - n10
+        return m, n10, n30 - n10
 
-    m, cost = measure(_small_suite("uav123"))
+    m, n10, cost = measure(_small_suite("uav123", 300))
     for lag, ref in UAV123_SHIFT.items():
-        assert m.at(lag).displacement_median == pytest.approx(ref, rel=0.25), lag
-    assert m.at(3).iou_below_half == pytest.approx(UAV123_IOU3_BELOW_HALF, rel=0.35)
-    assert cost > 0.08
-    m, cost = measure(_small_suite("legacy"))
+        assert m.at(lag).displacement_median == pytest.approx(ref, rel=0.15), lag
+    assert m.at(3).iou_below_half == pytest.approx(UAV123_IOU3_BELOW_HALF, rel=0.15)
+    assert n10 == pytest.approx(UAV123_ORACLE_NT2F10, rel=0.15)
+    assert cost > 0.15
+    m, n10, cost = measure(_small_suite("legacy", 150))
     assert m.at(3).displacement_median < 0.5 * UAV123_SHIFT[3]
     assert m.at(3).iou_below_half < 0.5 * UAV123_IOU3_BELOW_HALF
     assert cost < 0.02
+
+
+def _discrepancy(u: np.ndarray) -> float:
+    """Star discrepancy of points in [0, 1): the largest gap between their empirical CDF and
+    the uniform one."""
+    x = np.sort(u)
+    k = np.arange(1, len(x) + 1)
+    return float(max(np.max(k / len(x) - x), np.max(x - (k - 1) / len(x))))
+
+
+def test_suite_spreads_the_operators_evenly():
+    """The operators' pace and pan-count quantiles of the first N sequences of a suite, and of
+    each scenario's share of them, are spread like a low-discrepancy sequence: N x discrepancy
+    stays below 3 for every N up to 40, where independent uniform draws reach about 0.9 sqrt(N)
+    (3.9 at N = 20; checked here on seeded draws). The seed moves them."""
+    for seed in range(4):
+        specs = synth.suite_specs(40, 10, 64, 36, seed=seed)
+        for q in ("pace", "pans"):
+            u = np.array([getattr(sp, q) for sp in specs])
+            for n in range(5, 41, 5):
+                assert n * _discrepancy(u[:n]) < 3.0, (seed, q, n)
+            for r in range(len(synth.SCENARIOS)):
+                assert 8 * _discrepancy(u[r::5]) < 3.0, (seed, q, r)
+    iid = np.random.default_rng(0).random((200, 20))
+    assert np.mean([20 * _discrepancy(u) for u in iid]) > 3.0
+    a, b = (synth.suite_specs(3, 10, 64, 36, seed=s) for s in (0, 1))
+    assert a[0].pace != b[0].pace and a[0].pans != b[0].pans
+    with pytest.raises(ValueError, match="pace is a quantile in"):
+        dataclasses.replace(a[0], pace=1.0)
+
+
+def test_quantile_draws_follow_their_laws():
+    """The camera's quantile draws: the Poisson quantile by hand (mean 1.2: P(0) = 0.301,
+    P(<=1) = 0.663), its counts over evenly spread quantiles have the Poisson mean and variance;
+    the variance of a smooth-noise mean over a sequence against Monte-Carlo."""
+    from mata_eval.data.synth.motion import _poisson_quantile, _smooth_noise, _smooth_noise_mean_variance
+
+    assert [_poisson_quantile(1.2, q) for q in (0.01, 0.30, 0.31, 0.66, 0.67, 0.999)] == [0, 0, 1, 1, 2, 6]
+    counts = np.array([_poisson_quantile(1.2, (j + 0.5) / 10000) for j in range(10000)])
+    assert counts.mean() == pytest.approx(1.2, abs=0.01) and counts.var() == pytest.approx(1.2, abs=0.02)
+    rng = np.random.default_rng(0)
+    means = [_smooth_noise(rng, 300, 1.0, 60.0).mean() for _ in range(2000)]
+    assert np.var(means) == pytest.approx(_smooth_noise_mean_variance(300, 60.0), rel=0.1)
+    assert _smooth_noise_mean_variance(300, 0.001) == pytest.approx(1 / 300, rel=0.05)  # white noise
 
 
 def test_drone_camera_keeps_the_target_in_view_without_a_staged_spell():
