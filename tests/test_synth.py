@@ -371,13 +371,13 @@ def _discrepancy(u: np.ndarray) -> float:
 
 
 def test_suite_spreads_the_operators_evenly():
-    """The operators' pace and pan-count quantiles of the first N sequences of a suite, and of
+    """The operators' pace, pan-count and zoom-rate quantiles of the first N sequences of a suite, and of
     each scenario's share of them, are spread like a low-discrepancy sequence: N x discrepancy
     stays below 3 for every N up to 40, where independent uniform draws reach about 0.9 sqrt(N)
     (3.9 at N = 20; checked here on seeded draws). The seed moves them."""
     for seed in range(4):
         specs = synth.suite_specs(40, 10, 64, 36, seed=seed)
-        for q in ("pace", "pans"):
+        for q in ("pace", "pans", "zooming"):
             u = np.array([getattr(sp, q) for sp in specs])
             for n in range(5, 41, 5):
                 assert n * _discrepancy(u[:n]) < 3.0, (seed, q, n)

@@ -250,15 +250,16 @@ def drone_camera(rng: np.random.Generator, spec: SequenceSpec, P: np.ndarray, le
     - *re-framing pans* (Poisson in time, a few hundredths to a tenth of the image width in a
       fraction of a second): the moves that make a box a few frames old miss the target.
 
-    The two per-sequence draws that set how fast a sequence moves are read from quantiles of
-    the spec, so that a suite can spread them evenly (:func:`.spec.spread_quantiles`): the pace
-    at quantile ``spec.pace`` and the number of pans at quantile ``spec.pans`` of its Poisson
-    law. The spells are a smooth Gaussian process of which only the shape in time is random:
-    its mean over the sequence (a level that would make the whole sequence busy or calm) is
-    folded into the pace's log-normal spread, exactly (:func:`_smooth_noise_mean_variance`),
-    and its spread within the sequence is set to its expected value, so every sequence has the
-    same mix of busy and calm (generator 5; generator 4 drew the three at random per sequence,
-    the same laws on average, and a 20-sequence suite was a noisy sample of the model).
+    The per-sequence draws that set how fast a sequence moves are read from quantiles of the
+    spec, so that a suite can spread them evenly (:func:`.spec.spread_quantiles`): the pace at
+    quantile ``spec.pace``, the number of pans at quantile ``spec.pans`` of its Poisson law and
+    the zoom rate at ``spec.zooming``. The spells are a smooth Gaussian process of which only
+    the shape in time is random: its mean over the sequence (a level that would make the whole
+    sequence busy or calm) is folded into the pace's log-normal spread, with its exact variance
+    (:func:`_smooth_noise_mean_variance`), and its spread within the sequence is set to its
+    expected value, so every sequence has the same mix of busy and calm. (Generator 5;
+    generator 4 drew these at random per sequence, from the same laws on average, and a
+    20-sequence suite was a noisy sample of the model.)
 
     Further:
     - the framing error is saturated at ``max_offset`` (the target stays in view unless an
@@ -270,7 +271,7 @@ def drone_camera(rng: np.random.Generator, spec: SequenceSpec, P: np.ndarray, le
     s = W / REF_WIDTH
     yaw = rng.uniform(0, 2 * np.pi) + np.cumsum(_smooth_noise(rng, n, c.yaw_rate / fps, 0.67 * fps))
     tilt = np.clip(np.deg2rad(rng.uniform(0, 18)) + _smooth_noise(rng, n, np.deg2rad(4), 1.33 * fps), 0, np.deg2rad(28))
-    zoom_rate = c.zoom_rate * math.exp(rng.normal(0.0, c.zoom_spread))
+    zoom_rate = c.zoom_rate * math.exp(c.zoom_spread * NormalDist().inv_cdf(spec.zooming))
     logzoom = np.log(rng.uniform(0.95, 1.35)) + np.cumsum(_smooth_noise(rng, n, zoom_rate / fps, 1.0 * fps))
     roll = _smooth_noise(rng, n, np.deg2rad(1.0), 0.83 * fps)
     push = np.zeros((n, 2))

@@ -14,7 +14,7 @@ SCENARIOS = ("cruise", "manoeuvre", "outofview", "occlusion", "crowd")
 
 REF_WIDTH = 1280.0  # geometry, speeds and attribute thresholds scale with width / 1280
 GENERATOR_VERSION = 5  # bump when the pixels a seed gives change (cache key of the suite)
-# 5: the operators' pace and pans spread evenly over a suite; 4: the uav123 camera; 3: legacy.
+# 5: the operators' pace, pans and zoom rate spread evenly over a suite; 4: the uav123 camera; 3: legacy.
 
 #: Camera models (:mod:`.motion`): ``uav123``, image-plane motion matched to UAV123 (the
 #: default since generator version 4; in version 5 spread evenly over a suite); ``legacy``,
@@ -44,6 +44,7 @@ class SequenceSpec:
     motion: Literal["uav123", "legacy"] = "uav123"  # camera model, one of MOTIONS
     pace: float = 0.5            # quantile in (0, 1) of the camera operator's pace (uav123 only)
     pans: float = 0.5            # quantile in (0, 1) of their number of re-framing pans (uav123 only)
+    zooming: float = 0.5         # quantile in (0, 1) of how fast they zoom (uav123 only)
 
     def __post_init__(self) -> None:
         if self.n_frames < 2:
@@ -51,7 +52,7 @@ class SequenceSpec:
         if self.width < 32 or self.height < 24:
             raise ValueError(f"SequenceSpec {self.name!r}: image size must be at least 32x24, "
                              f"got {self.width}x{self.height}")
-        for q in ("pace", "pans"):
+        for q in ("pace", "pans", "zooming"):
             if not 0.0 < getattr(self, q) < 1.0:
                 raise ValueError(f"SequenceSpec {self.name!r}: {q} is a quantile in (0, 1), got {getattr(self, q)}")
         if self.motion not in MOTIONS:
@@ -66,9 +67,9 @@ def derive_seed(*key: int) -> int:
 
 def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 720, *,
               name: str | None = None, scenario: str | None = None, texture_seed: int | None = None,
-              fps: float = 30.0, motion: str = "uav123", quantiles: tuple[float, float] | None = None) -> SequenceSpec:
+              fps: float = 30.0, motion: str = "uav123", quantiles: tuple[float, float, float] | None = None) -> SequenceSpec:
     """A random sequence spec for ``seed``; ``scenario`` (one of :data:`SCENARIOS`) picks which
-    difficulties it stages, ``quantiles`` the ``(pace, pans)`` of the camera operator (see
+    difficulties it stages, ``quantiles`` the ``(pace, pans, zooming)`` of the camera operator (see
     :class:`SequenceSpec`), the rest is drawn from the seed."""
     rng = np.random.default_rng(derive_seed(seed, 1))
     scenario = scenario if scenario is not None else SCENARIOS[int(rng.integers(len(SCENARIOS)))]
@@ -84,8 +85,8 @@ def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 7
         illumination=scenario == "crowd" or bool(rng.random() < 0.15),
     )
     spec["camouflage"] = scenario in ("cruise", "crowd") and bool(rng.random() < 0.4)
-    spec["pace"], spec["pans"] = quantiles if quantiles is not None else (
-        np.random.default_rng(derive_seed(seed, 8)).uniform(1e-6, 1 - 1e-6, 2))
+    spec["pace"], spec["pans"], spec["zooming"] = quantiles if quantiles is not None else (
+        np.random.default_rng(derive_seed(seed, 8)).uniform(1e-6, 1 - 1e-6, 3))
     return SequenceSpec(name=name or f"syn{seed % 100000:05d}_{scenario}", seed=int(seed), n_frames=n_frames,
                         width=width, height=height, fps=fps, motion=motion,
                         texture_seed=int(texture_seed if texture_seed is not None else derive_seed(seed, 2)), **spec)
@@ -93,13 +94,13 @@ def make_spec(seed: int, n_frames: int = 300, width: int = 1280, height: int = 7
 
 #: Steps of the suite's low-discrepancy quantiles (:func:`spread_quantiles`), one per quantile.
 #: Searched so that every prefix of up to 60 sequences and every scenario's share of it (every
-#: 5th sequence) is evenly spread (N x discrepancy <= 2.5), and the pair too: the first is
+#: 5th sequence) is evenly spread (N x discrepancy <= 2.5 for each step); the first is
 #: (3 + 1/phi) / 5, whose multiples of 5 step by the golden ratio.
-SPREAD_STEPS = (0.7236068, 0.63)
+SPREAD_STEPS = (0.7236068, 0.63, 0.37)
 
 
-def spread_quantiles(seed: int, i: int) -> tuple[float, float]:
-    """The ``(pace, pans)`` quantiles of sequence ``i`` of a suite: an additive-recurrence
+def spread_quantiles(seed: int, i: int) -> tuple[float, float, float]:
+    """The ``(pace, pans, zooming)`` quantiles of sequence ``i`` of a suite: an additive-recurrence
     (Kronecker) low-discrepancy sequence ``frac(shift + i * step)`` with a random shift drawn
     from ``seed``. Any first N sequences of a suite then cover the operators' laws evenly, from
     calm to busy, instead of a random draw of them, and so does each scenario's share; sequence
@@ -114,8 +115,8 @@ def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, h
     """The default suite: sequence ``i`` is named ``syn<i+1>_<scenario>``, stages the scenario
     ``SCENARIOS[i % 5]`` and depends only on ``(seed, i)`` (not on ``n_sequences``); ground
     textures are shared by groups of sequences (``n_textures`` different grounds); ``motion``
-    is the camera model of every sequence (:data:`MOTIONS`); the operators' pace and number of
-    pans are spread evenly over the suite (:func:`spread_quantiles`)."""
+    is the camera model of every sequence (:data:`MOTIONS`); the operators' pace, number of
+    pans and zoom rate are spread evenly over the suite (:func:`spread_quantiles`)."""
     if n_sequences < 1:
         raise ValueError(f"n_sequences must be >= 1, got {n_sequences}")
     specs = []
