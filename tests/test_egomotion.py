@@ -186,8 +186,9 @@ def test_degenerate_input_gives_invalid_motion_not_an_exception(cls: type, groun
         assert not m.estimate(bad).valid
     m.initialize(ground)
     assert not m.estimate(ground[:200, :300]).valid
-    m.initialize(ground[:40, :40])  # smaller than 2 px per grid cell after downscaling (grid_lk)
-    assert m.estimate(ground[1:41, 1:41]).valid is False
+    m.initialize(ground[:40, :40])  # grid_lk: smaller than 2 px per grid cell after downscaling
+    tiny = m.estimate(ground[1:41, 1:41])  # (features: no such limit; whether 40x40 px of ground
+    assert tiny.valid is False or cls is FeatureLK  # has enough corners depends on the texture)
     m.initialize(ground[:, :, 0])  # a grey image is fine
     assert m.estimate(np.ascontiguousarray(ground[:, :, 0])).valid
 
