@@ -39,21 +39,21 @@ IMPLEMENTS = frozenset({
 
 # cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
- C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V) = range(13)
-N_CFG = 13
+ C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT) = range(14)
+N_CFG = 14
 # the motion input of a tick
 MOTION_NONE, MOTION_H, MOTION_H_COV = 0, 1, 2
 
 
 def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
            r_box: float, r_box_rel: float, r_conf: bool, q_box_rel: float, follow: float, decay: float,
-           p0_v: float) -> np.ndarray:
+           p0_v: float, q_adapt: bool = False) -> np.ndarray:
     """The ``cfg`` vector of :func:`tick` (HomographyEKF's resolved parameters)."""
     cfg = np.empty(N_CFG)
     cfg[[C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL, C_R_CONF,
-         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V]] = [
+         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT]] = [
         n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
-        follow, decay, p0_v]
+        follow, decay, p0_v, q_adapt]
     return cfg
 
 
@@ -350,8 +350,9 @@ def _local_scale(h, x, y, w, ds_dh):
 
 
 @_njit
-def _predict(x, P, cfg, q, dt):
-    """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place."""
+def _predict(x, P, cfg, q, dt, nis):
+    """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place; ``nis``:
+    the boxes' average normalised innovation squared (q_adapt)."""
     n = x.shape[0]
     nd = int(cfg[C_NDERIV])
     h = np.empty(9)
@@ -389,10 +390,11 @@ def _predict(x, P, cfg, q, dt):
     qd = np.empty(n)
     for i in range(n):
         qd[i] = q[i] * dt
-    if cfg[C_Q_BOX_REL] != 0.0:
+    adapt = cfg[C_Q_ADAPT] != 0.0
+    if cfg[C_Q_BOX_REL] != 0.0 or (adapt and nis > 1.0):
         extra = (cfg[C_Q_BOX_REL] * _box_side(x)) ** 2
         for i in range(4):
-            qd[i] = (q[i] + extra) * dt
+            qd[i] = ((q[i] + extra) * max(nis, 1.0) if adapt else q[i] + extra) * dt
 
     F = np.zeros((n, n))
     fx = np.empty(n)
@@ -493,14 +495,17 @@ def _predict(x, P, cfg, q, dt):
 @_njit
 def _update_box(x, P, cfg, z, conf):
     """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
-    update."""
+    update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation
+    (NaN when neither chi2_gate nor q_adapt needs it)."""
     r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
     if cfg[C_R_CONF] != 0.0:
         r = r / max(conf, 0.1) ** 2
     R = np.zeros((4, 4))
     for a in range(4):
         R[a, a] = r
-    if cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0:
+    inflate = cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0
+    d2 = np.nan
+    if inflate or cfg[C_Q_ADAPT] != 0.0:
         nu = np.empty(4)
         S = np.empty((4, 4))
         for a in range(4):
@@ -508,20 +513,21 @@ def _update_box(x, P, cfg, z, conf):
             for b in range(4):
                 S[a, b] = P[a, b] + R[a, b]
         d2 = _mahalanobis2(nu, S)
-        if d2 > cfg[C_CHI2]:
+        if inflate and d2 > cfg[C_CHI2]:
             f = d2 / cfg[C_CHI2]
             for a in range(4):
                 for b in range(4):
                     R[a, b] *= f
     _joseph_block(x, P, z, 0, R)
+    return d2
 
 
 @_njit
-def tick(x0, P0, cfg, q, floor, dt, n_used, H, C, motion, Z, confs, n_boxes, x, P):
+def tick(x0, P0, cfg, q, floor, dt, n_used, nis, H, C, motion, Z, confs, n_boxes, x, P, d2):
     """One tick (HomographyEKF._tick_state): motion update (before or after the prediction),
     velocity prior and prediction when dt > 0, the used boxes Z[:n_boxes] with their
-    confidences (as the box noise sees them). Writes x, P; returns False when the result is
-    not finite (the caller then holds the previous state)."""
+    confidences (as the box noise sees them). Writes x, P and each box's d2 (see _update_box);
+    returns False when the result is not finite (the caller then holds the previous state)."""
     n = x0.shape[0]
     for i in range(n):
         x[i] = x0[i]
@@ -533,11 +539,11 @@ def tick(x0, P0, cfg, q, floor, dt, n_used, H, C, motion, Z, confs, n_boxes, x, 
         _update_motion(x, P, cfg, floor, H, C, motion)
     if dt > 0:
         _velocity_prior(x, P, cfg, dt, n_used)
-        _predict(x, P, cfg, q, dt)
+        _predict(x, P, cfg, q, dt, nis)
     if use_h and not before:
         _update_motion(x, P, cfg, floor, H, C, motion)
     for b in range(n_boxes):
-        _update_box(x, P, cfg, Z[b], confs[b])
+        d2[b] = _update_box(x, P, cfg, Z[b], confs[b])
     for i in range(x.shape[0]):
         if not np.isfinite(x[i]):
             return False

@@ -287,6 +287,7 @@ class HomographyEKF:
                 p0_v=p.p0_v)
             self._boxes = np.empty((4, 4))      # the used boxes of a tick (grown on demand)
             self._confs = np.empty(4)
+            self._d2 = np.empty(4)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
@@ -408,12 +409,13 @@ class HomographyEKF:
                 if k == len(self._confs):
                     self._boxes = np.resize(self._boxes, (2 * k, 4))
                     self._confs = np.resize(self._confs, 2 * k)
+                    self._d2 = np.resize(self._d2, 2 * k)
                 self._boxes[k] = d.value.box.corners()
                 self._confs[k] = conf
                 k += 1
         x, P = np.empty_like(b.x), np.empty_like(b.P)
-        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used,
-                       H, C, motion, self._boxes, self._confs, k, x, P)
+        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, 1.0,
+                       H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
         return FilterState(x, P, gate) if ok else b
 
     def _tick_state(self, tick: _Tick) -> FilterState:
