@@ -8,7 +8,8 @@ are decoded once, before any timing (decoding costs both runs the same), or with
 each run, as ``mata-eval run`` does. Each repetition runs
 the baseline then MATA over every sequence, OpenCV on one thread. Prints, min and median over
 the repetitions:
-- CPU seconds of the baseline run and of the MATA run, and their ratio (target <= 1.25);
+- CPU seconds of the baseline run and of the MATA run, and their ratio (target <= 1.25), and
+  the CPU seconds of each block in them (where MATA's extra time goes);
 - per-frame CPU milliseconds of each block call as the scheduler timed them (its clock set to
   the process CPU time; min and median over the frames of the MATA runs): the egomotion block at 1280x720 (target <= 3 ms) and the estimator tick.
 """
@@ -66,18 +67,27 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no sequences under {root}: set MATA_SHARED_DATA")
         return 1
     seqs = [load(root, n, args.frames, args.decode) for n in names]
+    one_run(seqs[0], True)  # untimed: loads block C's compiled tick (once per process)
     base_cpu, mata_cpu, ego_ms, est_ms = [], [], {}, []
+    blocks: dict[str, list[float]] = {}  # CPU s of each block over the sequences, per repetition
     for _ in range(args.repeat):
         b = m = 0.0
+        sums: dict[str, float] = {}
         for seq in seqs:
-            b += one_run(seq, False)[0]
+            cpu, run = one_run(seq, False)
+            b += cpu
+            sums["baseline tracker"] = sums.get("baseline tracker", 0.0) + np.nansum(run.wall_ms["tracker"]) / 1e3
             cpu, run = one_run(seq, True)
             m += cpu
+            for block, ms in run.wall_ms.items():
+                sums[f"MATA {block}"] = sums.get(f"MATA {block}", 0.0) + np.nansum(ms) / 1e3
             size = seq.image(0).shape[1::-1]
             ego_ms.setdefault(size, []).extend(run.wall_ms["egomotion"][1:].tolist())
             est_ms.extend(run.wall_ms["estimator"][1:].tolist())
         base_cpu.append(b)
         mata_cpu.append(m)
+        for block, cpu in sums.items():
+            blocks.setdefault(block, []).append(cpu)
     n_frames = sum(len(s) for s in seqs)
     ratio = np.array(mata_cpu) / np.array(base_cpu)
     print(f"{len(seqs)} sequences ({', '.join(names)}), {n_frames} frames, LTP, KCF, {args.repeat} repetitions, "
@@ -86,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  MATA run (KCF+grid_lk+EKF)   CPU s  min {min(mata_cpu):.3f}  median {np.median(mata_cpu):.3f}")
     print(f"  ratio MATA / baseline (per repetition)  min {ratio.min():.3f}  median {np.median(ratio):.3f}  "
           f"(target <= 1.25)")
+    print("  per block, CPU s over the sequences  " + "  ".join(
+        f"{block} {min(v):.3f} / {np.median(v):.3f}" for block, v in blocks.items()))
     for (w, h), ms in ego_ms.items():
         ms = np.array(ms)
         print(f"  egomotion block {w}x{h}  CPU ms per frame  min {ms.min():.2f}  median {np.median(ms):.2f}"
