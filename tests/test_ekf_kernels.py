@@ -71,15 +71,18 @@ def scenario(seed: int, n: int = 90, delay: bool = False):
 
 
 def run(est: HomographyEKF, ticks) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes (with the search centre fed back, NaN when withheld) and covariances."""
     out = [est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)]
     for t, motions, dets in ticks:
         out.append(est.step(t, motions, dets))
-    return np.array([e.box.as_array() for e in out]), np.array([e.cov for e in out])
+    boxes = [tuple(e.box.as_array()) + (e.prior or (np.nan, np.nan)) for e in out]
+    return np.array(boxes), np.array([e.cov for e in out])
 
 
 CASES = [dict(), dict(delay="compensate"), dict(delay="ignore"), dict(h_update="after_predict"),
          dict(model="ca"), dict(model="cj"), dict(gating=False), dict(camera=False),
-         dict(box_motion="corners"), dict(box_motion="centre")]
+         dict(box_motion="corners"), dict(box_motion="centre"),
+         dict(feedback_carry=True, feedback_shift=0.25)]
 
 
 @pytest.mark.parametrize("preset", ["mata", "paper"])
@@ -94,8 +97,9 @@ def test_compiled_tick_equals_the_numpy_reference(preset, case):
         ref_boxes, ref_covs = run(ref, ticks)
         est = HomographyEKF(P(preset=preset, **case), backend="numba")
         boxes, covs = run(est, ticks)
-        assert np.all(np.isfinite(boxes))
-        assert np.abs(boxes - ref_boxes).max() <= 1e-9          # px
+        assert np.all(np.isfinite(boxes[:, :4]))
+        assert np.array_equal(np.isnan(boxes), np.isnan(ref_boxes))
+        assert np.nanmax(np.abs(boxes - ref_boxes)) <= 1e-9     # px
         assert np.abs(covs - ref_covs).max() <= 1e-9 * max(1.0, np.abs(ref_covs).max())
         assert est.state.gate == ref.state.gate
 
@@ -144,7 +148,7 @@ def test_the_filter_runs_without_numba(monkeypatch):
     est = HomographyEKF()
     assert est._kernel is None
     boxes, _ = run(est, scenario(0, n=20))
-    assert np.all(np.isfinite(boxes))
+    assert np.all(np.isfinite(boxes[:, :4]))
     with pytest.raises(ImportError, match=r"pip install 'mata-eval\[fast\]'"):
         HomographyEKF(backend="numba")
 
