@@ -102,7 +102,8 @@ def test_every_step_matches_filterpy(model, preset):
     ExtendedKalmanFilter given the same F, Q, H, R (relative 1e-9); under the mata preset Q and
     R follow the box size (the plugin's own noise functions give them)."""
     rng = np.random.default_rng(42)
-    est = HomographyEKF(P(model=model, gating=False, preset=preset, follow_prior=0.0, velocity_decay_s=0.0))
+    est = HomographyEKF(P(model=model, gating=False, preset=preset, follow_prior=0.0, velocity_decay_s=0.0,
+                          q_adapt=False))
     box0 = Box(200.0, 150.0, 40.0, 30.0)
     est.initialize(box0, 0.0)
     n = est.state.x.size

@@ -315,6 +315,16 @@ def robust_noise(innovation: np.ndarray, P_zz: np.ndarray, R: np.ndarray, chi2: 
     return R * (d2 / chi2)
 
 
+def normalised_innovation_average(average: float, d2: float, dof: int, cap: float,
+                                  alpha: float) -> float:
+    """EWMA of the normalised innovation squared d2 / dof (each term capped at cap / dof, so one
+    outlier moves it by a bounded step). Its expectation is 1 when the filter's covariances are
+    right (d2 ~ chi2(dof)); above 1 the predictions are worse than the filter believes
+    (innovation-based covariance matching, Mehra 1972)."""
+    term = min(float(d2), cap) / dof
+    return float(alpha * term + (1.0 - alpha) * average) if np.isfinite(term) else average
+
+
 def selector(n: int, sl: slice) -> np.ndarray:
     """Measurement matrix picking the state entries ``sl`` (corners or homography)."""
     idx = np.arange(n)[sl]

@@ -5,7 +5,8 @@ Two presets (docs/mata.md): ``paper`` is block C as the paper describes it (EWMA
 gate with absolute thresholds, corners through H, fixed R, delayed boxes applied on arrival);
 ``mata``, the default, is the filter that does not make its tracker worse (delays compensated,
 rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
-confidence statistics plus innovation gating, R growing as confidence falls). A parameter left
+confidence statistics plus innovation gating, R growing as confidence falls, corner process
+noise matched to the innovations). A parameter left
 unset takes its preset's value; any parameter set in YAML overrides the preset.
 
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
@@ -49,10 +50,10 @@ _R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
                   box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
-                  q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0),
+                  q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
     "mata": dict(gate="relative", tau_ewma=0.5, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
                  box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
-                 q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0),
+                 q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
 }
 
 
@@ -104,6 +105,7 @@ class GateState:
     accepted: tuple[float, ...] = ()
     n_used: int = 0  # boxes used since init
     ranked: tuple[float, ...] = ()  # ``accepted`` in increasing order (a cheap median)
+    nis: float = 1.0  # q_adapt: average normalised innovation squared of the used boxes
 
 
 @dataclass(frozen=True)
@@ -202,6 +204,10 @@ class HomographyEKF:
             False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
             "that box moved by the filter's predicted motion since its capture instead of the "
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
+        q_adapt: bool | None = _preset_param(
+            "q_adapt", "the corners' process noise times the average (EWMA, alpha_ewma) of the "
+            "used boxes' normalised innovation squared d2 / 4, each capped at chi2_gate / 4, when "
+            "above 1 (predictions worse than the filter believes: jerky footage, manoeuvres)")
         h_update: Literal["before_predict", "after_predict"] = param(
             "before_predict", "use this interval's homography before propagating the corners, or after (literal paper)")
         box_motion: Literal["corners", "centre"] | None = _preset_param(
@@ -427,7 +433,7 @@ class HomographyEKF:
         if tick.dt > 0:
             x, P = self._velocity_prior(x, P, tick.dt, gate.n_used)
             fx, F = em.transition(x, tick.dt, self.n_deriv, self.params.box_motion)
-            x, P = fx, em.predict_cov(P, F, np.diag(self._process_noise(x) * tick.dt))
+            x, P = fx, em.predict_cov(P, F, np.diag(self._process_noise(x, gate.nis) * tick.dt))
         if not before:
             x, P = self._update_motion(x, P, motions)
         for det in sorted(tick.detections, key=_t_capture):
@@ -455,12 +461,15 @@ class HomographyEKF:
             P = A @ P @ A.T
         return x, P
 
-    def _process_noise(self, x: np.ndarray) -> np.ndarray:
-        """Q rates per second: the corners' grow with the box side sqrt(w h) (q_box_rel)."""
+    def _process_noise(self, x: np.ndarray, nis: float = 1.0) -> np.ndarray:
+        """Q rates per second: the corners' grow with the box side sqrt(w h) (q_box_rel) and,
+        with ``q_adapt``, by the boxes' average normalised innovation squared when above 1."""
         q = self._q
-        if self.params.q_box_rel:
+        if self.params.q_box_rel or (self.params.q_adapt and nis > 1.0):
             q = q.copy()
             q[em.CORNERS] += np.square(self.params.q_box_rel * em.box_side(x))
+            if self.params.q_adapt:
+                q[em.CORNERS] *= max(nis, 1.0)
         return q
 
     # --- measurements -----------------------------------------------------------------------------
@@ -519,6 +528,11 @@ class HomographyEKF:
             return x, P, gate
         z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
+        if p.q_adapt:  # before R is inflated: d2 measures the prediction against the box's R
+            d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R)
+            cap = p.chi2_gate if p.chi2_gate else np.inf
+            gate = dataclasses.replace(
+                gate, nis=em.normalised_innovation_average(gate.nis, d2, 4, cap, p.alpha_ewma))
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
@@ -536,15 +550,15 @@ class HomographyEKF:
         if relative and conf <= 0:
             accept = False  # a tracker that found nothing says so with confidence 0
         if not out.box.is_valid or (p.gating and not accept):
-            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked), None
+            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked, gate.nis), None
         if not relative:
-            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked), conf
+            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked, gate.nis), conf
         ranked = list(gate.ranked)
         if len(gate.accepted) == CONFIDENCE_HISTORY:   # the oldest one leaves
             del ranked[bisect.bisect_left(ranked, gate.accepted[0])]
         bisect.insort(ranked, raw)
         return GateState(ewma, gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (raw,), gate.n_used + 1,
-                         tuple(ranked)), conf
+                         tuple(ranked), gate.nis), conf
 
     def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
