@@ -35,7 +35,7 @@ IMPLEMENTS = frozenset({
     "tau_sigma", "delay", "history_s", "follow_prior", "velocity_decay_s", "h_update", "box_motion",
     "r_box", "r_box_rel", "r_confidence", "r_h_floor", "q_box", "q_box_rel", "q_h", "q_v", "q_a", "q_j",
     "p0_box", "p0_h", "p0_v", "p0_a", "p0_j",
-    "feedback_shift", "feedback_carry"})  # these two act in step(), outside the tick
+    "q_adapt", "feedback_shift", "feedback_carry"})  # the feedback ones act in step(), outside the tick
 
 # cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,

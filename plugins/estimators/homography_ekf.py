@@ -290,7 +290,7 @@ class HomographyEKF:
                 n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
                 gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
-                p0_v=p.p0_v)
+                p0_v=p.p0_v, q_adapt=p.q_adapt)
             self._boxes = np.empty((4, 4))      # the used boxes of a tick (grown on demand)
             self._confs = np.empty(4)
             self._d2 = np.empty(4)
@@ -420,9 +420,14 @@ class HomographyEKF:
                 self._confs[k] = conf
                 k += 1
         x, P = np.empty_like(b.x), np.empty_like(b.P)
-        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, 1.0,
+        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, b.gate.nis,
                        H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
-        return FilterState(x, P, gate) if ok else b
+        if not ok:
+            return b
+        if self.params.q_adapt:
+            for d2 in self._d2[:k].tolist():     # in the order the boxes were used
+                gate = self._with_innovation(gate, d2)
+        return FilterState(x, P, gate)
 
     def _tick_state(self, tick: _Tick) -> FilterState:
         x, P, gate = tick.before.x, tick.before.P, tick.before.gate
@@ -529,14 +534,18 @@ class HomographyEKF:
         z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
         if p.q_adapt:  # before R is inflated: d2 measures the prediction against the box's R
-            d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R)
-            cap = p.chi2_gate if p.chi2_gate else np.inf
-            gate = dataclasses.replace(
-                gate, nis=em.normalised_innovation_average(gate.nis, d2, 4, cap, p.alpha_ewma))
+            gate = self._with_innovation(gate, em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R))
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
         return x, P, gate
+
+    def _with_innovation(self, gate: GateState, d2: float) -> GateState:
+        """q_adapt: the gate memory with a used box's squared Mahalanobis innovation d2 (4
+        corners, under the box's R before the chi2 inflation) in the average."""
+        p = self.params
+        cap = p.chi2_gate if p.chi2_gate else np.inf
+        return dataclasses.replace(gate, nis=em.normalised_innovation_average(gate.nis, d2, 4, cap, p.alpha_ewma))
 
     def _gate_detection(self, gate: GateState, out: TrackerOutput) -> tuple[GateState, float | None]:
         """Block A's gate (needs no state): the gate memory after this box and the confidence
