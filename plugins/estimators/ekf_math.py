@@ -12,6 +12,7 @@ analytic Jacobian; the generic filter algebra is checked against filterpy in the
 
 from __future__ import annotations
 
+import math
 from math import factorial
 
 import numpy as np
@@ -322,7 +323,7 @@ def normalised_innovation_average(average: float, d2: float, dof: int, cap: floa
     right (d2 ~ chi2(dof)); above 1 the predictions are worse than the filter believes
     (innovation-based covariance matching, Mehra 1972)."""
     term = min(float(d2), cap) / dof
-    return float(alpha * term + (1.0 - alpha) * average) if np.isfinite(term) else average
+    return float(alpha * term + (1.0 - alpha) * average) if math.isfinite(term) else average
 
 
 def selector(n: int, sl: slice) -> np.ndarray:

@@ -424,9 +424,11 @@ class HomographyEKF:
                        H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
         if not ok:
             return b
-        if self.params.q_adapt:
+        if self.params.q_adapt and k:
+            nis = gate.nis
             for d2 in self._d2[:k].tolist():     # in the order the boxes were used
-                gate = self._with_innovation(gate, d2)
+                nis = self._innovation_average(nis, d2)
+            gate = GateState(gate.ewma, gate.accepted, gate.n_used, gate.ranked, nis)
         return FilterState(x, P, gate)
 
     def _tick_state(self, tick: _Tick) -> FilterState:
@@ -534,18 +536,19 @@ class HomographyEKF:
         z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
         if p.q_adapt:  # before R is inflated: d2 measures the prediction against the box's R
-            gate = self._with_innovation(gate, em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R))
+            d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R)
+            gate = dataclasses.replace(gate, nis=self._innovation_average(gate.nis, d2))
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
         return x, P, gate
 
-    def _with_innovation(self, gate: GateState, d2: float) -> GateState:
-        """q_adapt: the gate memory with a used box's squared Mahalanobis innovation d2 (4
-        corners, under the box's R before the chi2 inflation) in the average."""
+    def _innovation_average(self, nis: float, d2: float) -> float:
+        """q_adapt: the average ``nis`` with a used box's squared Mahalanobis innovation d2 (4
+        corners, under the box's R before the chi2 inflation)."""
         p = self.params
         cap = p.chi2_gate if p.chi2_gate else np.inf
-        return dataclasses.replace(gate, nis=em.normalised_innovation_average(gate.nis, d2, 4, cap, p.alpha_ewma))
+        return em.normalised_innovation_average(nis, d2, 4, cap, p.alpha_ewma)
 
     def _gate_detection(self, gate: GateState, out: TrackerOutput) -> tuple[GateState, float | None]:
         """Block A's gate (needs no state): the gate memory after this box and the confidence
