@@ -1,7 +1,9 @@
 """What MATA hands its tracker (paper L424): an estimate's ``feedback`` flag decides whether the
-scheduler gives the tracker that estimate's centre as its search centre, and ``homography_ekf``
-withholds it, with ``feedback_shift``, when it would not move the tracker's search out of its
-own newest box. Checked on hand-built timelines: a camera pan of known size against the box."""
+scheduler gives the tracker a search centre, ``search`` which one (default: the estimate's
+centre). ``homography_ekf`` withholds it, with ``feedback_shift``, when it would not move the
+tracker's search out of its own newest box, and with ``feedback_carry`` hands the tracker's own
+box moved by the predicted motion. Checked on hand-built timelines: camera pans of known size
+against the box, a world-still target whose true position is known."""
 
 from __future__ import annotations
 
@@ -22,6 +24,8 @@ FPS = 30.0
 def test_estimate_prior_is_its_centre_unless_withheld():
     assert Estimate(BOX).prior == (100.0, 100.0)
     assert Estimate(BOX, feedback=False).prior is None
+    assert Estimate(BOX, search=(1.0, 2.0)).prior == (1.0, 2.0)
+    assert Estimate(BOX, feedback=False, search=(1.0, 2.0)).prior is None
 
 
 class FlagEstimator:
