@@ -4,6 +4,7 @@ HomographyEKF._tick_state) to rounding, and the filter runs without numba."""
 from __future__ import annotations
 
 import dataclasses
+import pickle
 import sys
 
 import numpy as np
@@ -125,14 +126,24 @@ def test_the_scenario_exercises_what_it_claims():
 
 def test_backend_choice(monkeypatch):
     monkeypatch.delenv("MATA_EVAL_EKF_BACKEND", raising=False)
-    assert HomographyEKF(P(preset="mata"))._kernel is ekf_kernels      # auto: numba for mata
+    assert HomographyEKF(P(preset="mata"))._kernel is ekf_kernels.tick  # auto: numba for mata
     assert HomographyEKF(P(preset="paper"))._kernel is None            # auto: the reference for paper
-    assert HomographyEKF(P(preset="paper"), backend="numba")._kernel is ekf_kernels
+    assert HomographyEKF(P(preset="paper"), backend="numba")._kernel is ekf_kernels.tick
     monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "numpy")
     assert HomographyEKF(P(preset="mata"))._kernel is None
     monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "fortran")
     with pytest.raises(ValueError, match="MATA_EVAL_EKF_BACKEND.*'fortran'"):
         HomographyEKF()
+
+
+def test_a_filter_on_the_compiled_path_pickles_and_goes_on_alike():
+    ticks = scenario(2, n=40)
+    est = HomographyEKF(P(preset="mata"), backend="numba")
+    run(est, ticks[:20])
+    twin = pickle.loads(pickle.dumps(est))
+    for t, motions, dets in ticks[20:]:
+        a, b = est.step(t, motions, dets), twin.step(t, motions, dets)
+        assert a.box == b.box and np.array_equal(a.cov, b.cov)
 
 
 def test_a_parameter_the_kernel_does_not_implement_falls_back_to_numpy(monkeypatch):

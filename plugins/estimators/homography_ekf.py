@@ -284,9 +284,12 @@ class HomographyEKF:
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
-        self._kernel = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
-        if self._kernel is not None:
-            self._cfg = self._kernel.config(
+        kernels = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
+        # the compiled tick (a numba dispatcher, picklable like the filter) or None for numpy
+        self._kernel = None if kernels is None else kernels.tick
+        if kernels is not None:
+            self._motion_codes = (kernels.MOTION_NONE, kernels.MOTION_H, kernels.MOTION_H_COV)
+            self._cfg = kernels.config(
                 n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
                 gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
@@ -386,26 +389,26 @@ class HomographyEKF:
             return self._tick_state(tick)
 
     def _tick_compiled(self, tick: _Tick) -> FilterState:
-        """:meth:`_tick_state` with the algebra in one compiled call (ekf_kernels.tick): the
+        """:meth:`_tick_state` with the algebra in one compiled call (``ekf_kernels.tick``): the
         policy that needs no state (motion validity and composition, the confidence gate) is
         decided here, exactly as the numpy path decides it."""
         b = tick.before
-        kern = self._kernel
-        H, C, motion = self._no_h, self._no_cov, kern.MOTION_NONE
+        no_motion, with_h, with_cov = self._motion_codes
+        H, C, motion = self._no_h, self._no_cov, no_motion
         ms = tick.motions
         if len(ms) == 1 and self.params.camera:     # validity tested in the kernel
             m = ms[0].value
             H = np.asarray(m.H, dtype=float)
             if m.valid and H.shape == (3, 3):
-                motion = kern.MOTION_H
+                motion = with_h
                 if m.cov is not None:
                     C = np.asarray(m.cov, dtype=float)
-                    motion = kern.MOTION_H_COV if C.shape == (9, 9) else kern.MOTION_NONE
+                    motion = with_cov if C.shape == (9, 9) else no_motion
         elif ms:
             meas = self._motion_measurement(ms)
             if meas is not None:
                 H, C = meas
-                motion = kern.MOTION_H if C is None else kern.MOTION_H_COV
+                motion = with_h if C is None else with_cov
                 C = self._no_cov if C is None else C
         gate, k = b.gate, 0
         dets = tick.detections
@@ -420,7 +423,7 @@ class HomographyEKF:
                 self._confs[k] = conf
                 k += 1
         x, P = np.empty_like(b.x), np.empty_like(b.P)
-        ok = kern.tick(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, b.gate.nis,
+        ok = self._kernel(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, b.gate.nis,
                        H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
         if not ok:
             return b
