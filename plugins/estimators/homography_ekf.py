@@ -391,7 +391,8 @@ class HomographyEKF:
     def _tick_compiled(self, tick: _Tick) -> FilterState:
         """:meth:`_tick_state` with the algebra in one compiled call (``ekf_kernels.tick``): the
         policy that needs no state (motion validity and composition, the confidence gate) is
-        decided here, exactly as the numpy path decides it."""
+        decided here, exactly as the numpy path decides it; q_adapt's average takes the d2 the
+        kernel returns for each used box."""
         b = tick.before
         no_motion, with_h, with_cov = self._motion_codes
         H, C, motion = self._no_h, self._no_cov, no_motion
@@ -424,7 +425,7 @@ class HomographyEKF:
                 k += 1
         x, P = np.empty_like(b.x), np.empty_like(b.P)
         ok = self._kernel(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, b.gate.nis,
-                       H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
+                          H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
         if not ok:
             return b
         if self.params.q_adapt and k:
