@@ -17,7 +17,7 @@ both presets). Policy stays in Python (``HomographyEKF``): the confidence gate, 
 of several motions, q_adapt's average (from the d2 returned here); the state-dependent tests
 (front of camera, tau_sigma, chi2 inflation) are here because they need the state mid-tick.
 
-Compiling takes about 17 CPU-s, once: the cache (``cache=True``) sits next to this file, or in
+Compiling takes 12 to 17 CPU-s here, once: the cache (``cache=True``) sits next to this file, or in
 the user's cache directory when the package is read-only, and a later process loads it in about
 0.3 s. Where neither is writable, each process compiles it once, quietly.
 """
