@@ -144,6 +144,24 @@ def test_relative_gate_accepts_a_low_but_steady_tracker_and_keeps_the_drop_test(
     assert not any(accepted[1:])  # the paper's thresholds: everything after the seed rejected
 
 
+def test_relative_gate_follows_a_gradual_decline_and_rejects_a_sudden_one():
+    """A tracker steady at 0.9 for 30 outputs whose confidence then declines by 0.03 per output to
+    0.33 (appearance change: the median of the accepted boxes stays 0.9, so the relative
+    confidence ends at 0.37 and its EWMA a little above): the preset's level test (tau_ewma 0.25
+    of the median) keeps using it, where 0.5 rejected the boxes from about relative 0.45 on
+    and the filter coasted away (synthetic syn001, KCF, EOP: NT2F 100 -> 51). From the plateau,
+    a sudden fall to 0.2 (relative 0.22; EWMA 0.77, drop 0.55 > tau_diff 0.5) is rejected, and
+    so is a 0 (found nothing)."""
+    steady = [0.9] * 30
+    decline = [round(0.9 - 0.03 * (i + 1), 2) for i in range(19)]  # 0.87 ... 0.33
+    used = _dets(HomographyEKF(P()), steady + decline)
+    assert used == list(range(49))
+    used = _dets(HomographyEKF(P(tau_ewma=0.5)), steady + decline)
+    assert used[-1] < 48  # the former preset value rejects the end of the decline
+    used = _dets(HomographyEKF(P()), steady + [0.2, 0.9, 0.0, 0.9])
+    assert used == list(range(30)) + [31, 33]
+
+
 def test_r_grows_as_the_relative_confidence_falls():
     est = HomographyEKF(P())
     est.initialize(Box(100, 100, 40, 40), 0.0)

@@ -51,7 +51,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
                   box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
                   q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
-    "mata": dict(gate="relative", tau_ewma=0.5, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
+    "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
                  box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
                  q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
 }
