@@ -112,6 +112,8 @@ def test_relative_confidence_hand_computed():
     assert relative_confidence((0.2, 0.1, 0.3), 0.5) == 1.0
     assert relative_confidence((0.2,), 0.0) == 0.0
     assert relative_confidence((0.2,), math.nan) == 0.0
+    # `gating: false` accepts zero-confidence boxes, so the median can be 0 (KCF, ablation row 7)
+    assert relative_confidence((0.0, 0.0, 0.3), 0.1) == 1.0
 
 
 def _dets(est, confs, box=Box(100, 100, 40, 40), every=3):

@@ -88,6 +88,8 @@ def relative_confidence(history: tuple[float, ...], confidence: float, ranked: b
         return 1.0
     # statistics.median: the same value as np.median, without numpy's overhead on 100 floats
     median = _median_of_ranked(history) if ranked else statistics.median(history)
+    if median <= 0:  # gating off accepts zero-confidence boxes: any positive one is at least typical
+        return 1.0
     return float(min(1.0, confidence / median))
 
 
