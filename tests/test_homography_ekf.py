@@ -328,7 +328,7 @@ def test_params_from_yaml_and_errors():
 
 # --- the ablation experiment file ------------------------------------------------------------------
 
-def test_ablation_experiment_expands_to_the_seven_configurations():
+def test_ablation_experiment_expands_to_the_seven_configurations_and_the_paper_row():
     import importlib.util
     from pathlib import Path
 
@@ -344,11 +344,13 @@ def test_ablation_experiment_expands_to_the_seven_configurations():
         pytest.skip(f"plugins not installed yet: {', '.join(missing)}")
     exp = load_experiment(Path(__file__).resolve().parents[1] / "experiments" / "ablation.yaml")
     runs = {r.name: r for r in exp.runs}
-    assert list(runs) == ["1-baseline", "2-mata", "3-score", "4-no-camera", "5-ca", "6-cj", "7-no-threshold"]
+    assert list(runs) == ["1-baseline", "2-mata", "3-score", "4-no-camera", "5-ca", "6-cj", "7-no-threshold",
+                          "8-paper"]
     for name in ("1-baseline", "3-score"):
         assert runs[name].egomotion is None and runs[name].estimator is None
     est = {n: r.estimator.params for n, r in runs.items() if r.estimator is not None}
-    assert est["2-mata"] == HomographyEKF.Params(preset="paper", delay="ignore")
+    assert est["2-mata"] == HomographyEKF.Params()  # the default preset, mata
+    assert est["8-paper"] == HomographyEKF.Params(preset="paper")
     assert runs["4-no-camera"].egomotion is None and est["4-no-camera"].camera is False
     assert (est["5-ca"].model, est["6-cj"].model, est["7-no-threshold"].gating) == ("ca", "cj", False)
     assert all(r.protocol.name == "eop" and r.tracker.name == "kcf" for r in runs.values())
