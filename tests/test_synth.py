@@ -400,6 +400,7 @@ def test_quantile_draws_follow_their_laws():
     assert [_poisson_quantile(1.2, q) for q in (0.01, 0.30, 0.31, 0.66, 0.67, 0.999)] == [0, 0, 1, 1, 2, 6]
     counts = np.array([_poisson_quantile(1.2, (j + 0.5) / 10000) for j in range(10000)])
     assert counts.mean() == pytest.approx(1.2, abs=0.01) and counts.var() == pytest.approx(1.2, abs=0.02)
+    assert _poisson_quantile(800.0, 0.5) == 800 and _poisson_quantile(800.0, 0.8413) == 828  # mean + sd
     rng = np.random.default_rng(0)
     means = [_smooth_noise(rng, 300, 1.0, 60.0).mean() for _ in range(2000)]
     assert np.var(means) == pytest.approx(_smooth_noise_mean_variance(300, 60.0), rel=0.1)

@@ -42,7 +42,10 @@ def _smooth_noise_mean_variance(n: int, corr: float) -> float:
 
 
 def _poisson_quantile(mean: float, q: float) -> int:
-    """The smallest count whose Poisson(``mean``) CDF reaches ``q``."""
+    """The smallest count whose Poisson(``mean``) CDF reaches ``q`` (normal approximation past a
+    mean of 500, where ``exp(-mean)`` underflows: sequences of over an hour)."""
+    if mean > 500:
+        return max(0, round(mean + math.sqrt(mean) * NormalDist().inv_cdf(q)))
     k, p = 0, math.exp(-mean)
     cdf = p
     while cdf < q:
