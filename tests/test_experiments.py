@@ -100,9 +100,10 @@ def test_ablation_is_table_3(name):
     assert details["4"] == prefix + "no camera compensation"
     assert details["5"] == prefix + "constant acceleration model"
     assert details["6"] == prefix + "constant jerk model" and details["7"] == prefix + "no threshold on measurements"
-    assert details["2"] == ("improved block C (preset mata)" if name == "ablation" else "MATA")
+    paper = "MATA, the paper's block C (preset paper)"
+    assert details["2"] == ("improved block C (preset mata)" if name == "ablation" else paper)
     if extra:
-        assert details["8"] == "MATA" and runs["8"].resolved["estimator"]["preset"] == "paper"
+        assert details["8"] == paper and runs["8"].resolved["estimator"]["preset"] == "paper"
 
 
 @pytest.mark.parametrize("name", ["embedded", "embedded_real"])

@@ -161,7 +161,7 @@ def test_ablation_rows_marks_and_details(tmp_path):
     body = {r[0]: r for r in rows[2:]}
     assert [r[0] for r in rows[2:]] == ["1", "2", "3", "4", "5", "7"]
     assert body["1"][1:5] == ["✗", "✗", "✗", "MixFormerV2 (baseline)"]
-    assert body["2"][1:5] == ["✓", "✓", "✗", "MATA"]
+    assert body["2"][1:5] == ["✓", "✓", "✗", "MATA, the paper's block C (preset paper)"]
     assert body["3"][1:5] == ["✗", "✗", "✓", "MixFormerV2 (baseline), explainable score"]
     assert body["4"][1:5] == ["✗", "✓", "✗", "no camera compensation"]
     assert body["5"][4] == "constant acceleration model"
@@ -288,7 +288,7 @@ def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):
     rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
     assert rows[0][:2] == ["VOT", "Configuration"]
     assert [(r[0], r[5]) for r in rows[2:]] == [
-        ("VitTrack", "MATA"), ("KCF", "KCF (baseline)"),
+        ("VitTrack", "MATA, the paper's block C (preset paper)"), ("KCF", "KCF (baseline)"),
         ("", "delay compensation, confidence gate tau_ewma = 0.05")]
 
 

@@ -47,6 +47,9 @@ _R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
 
 # --- presets (docs/mata.md gives the measured evidence for each "mata" value) -------------------
 
+# the ablation row of the unmodified paper preset (paper Table 3, configuration 2: "MATA")
+PAPER_BLOCK_C = "MATA, the paper's block C (preset paper)"
+
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
                   box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
@@ -160,7 +163,7 @@ class HomographyEKF:
             parts.append("delay compensation")
         if p["gating"] and p["tau_ewma"] != PRESETS[preset]["tau_ewma"]:
             parts.append(f"confidence gate tau_ewma = {p['tau_ewma']:g}")
-        return ego, True, ", ".join(x for x in parts if x) or "MATA"
+        return ego, True, ", ".join(x for x in parts if x) or PAPER_BLOCK_C
 
     @dataclass(frozen=True)
     class Params:
