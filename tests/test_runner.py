@@ -237,3 +237,20 @@ def test_a_run_that_kills_its_worker_fails_only_itself_not_the_runs_sharing_its_
     outcomes = {(o.run, o.sequence): o.status for o in run_experiment(exp, jobs=2, progress=False, log=lambda s: None)}
     assert outcomes.pop(("killer", "s2")) == "failed"
     assert set(outcomes.values()) == {"done"} and len(outcomes) == 9
+
+
+def test_rewriting_a_sequence_makes_the_run_scores_stale(tmp_path):
+    """`run --force --no-report` then `report`: the report must not show the scores of the old
+    predictions, so a run whose sequence is rewritten loses its scores.json (and is scored again
+    when reported); a rerun that writes nothing keeps it."""
+    exp = _exp(tmp_path)
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    scores = tmp_path / "out" / "exp" / "scores.json"
+    scores.write_text("{}")
+    run_experiment(exp, sequences=["good"], jobs=1, progress=False, log=lambda s: None)
+    assert scores.exists()  # 'good' is finished: skipped, nothing rewritten
+    run_experiment(exp, sequences=["good"], jobs=1, force=True, progress=False, log=lambda s: None)
+    assert not scores.exists()
+    scores.write_text("{}")
+    run_experiment(exp, sequences=["broken"], jobs=1, progress=False, log=lambda s: None)
+    assert not scores.exists()  # a failed sequence is rewritten too

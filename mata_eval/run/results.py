@@ -112,8 +112,18 @@ def _are_numbers(parts: list[str], n: int) -> bool:
     return len(parts) == n
 
 
+SCORES = "scores.json"  # the run's scores (mata_eval.score.evaluate), stale once a sequence changes
+
+
+def invalidate_scores(run_dir: Path) -> None:
+    """Remove the run's scores.json: a sequence of it is being rewritten, so the scores no longer
+    describe the predictions (a report then scores the run again instead of showing old numbers)."""
+    (Path(run_dir) / SCORES).unlink(missing_ok=True)
+
+
 def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, trace_csv: str) -> None:
     """Write one finished sequence: sidecars first, predictions last (the completion mark)."""
+    invalidate_scores(run_dir)
     atomic_write_text(inside(run_dir, seq, ".frames.csv"), frames_csv)
     atomic_write_text(inside(run_dir, seq, ".trace.csv"), trace_csv)
     inside(run_dir, seq, ".failed.json").unlink(missing_ok=True)
@@ -121,6 +131,7 @@ def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, 
 
 
 def write_failure(run_dir: Path, seq: str, reason: str, tb: str) -> None:
+    invalidate_scores(run_dir)
     write_json(inside(run_dir, seq, ".failed.json"), {"sequence": seq, "reason": reason, "traceback": tb})
 
 
@@ -152,6 +163,7 @@ def read_failures(run_dir: Path) -> dict[str, str]:
 
 
 def clear_sequence(run_dir: Path, seq: str) -> None:
+    invalidate_scores(run_dir)
     for suffix in (".txt", ".frames.csv", ".trace.csv", ".failed.json", ".bad_frames.json"):
         inside(run_dir, seq, suffix).unlink(missing_ok=True)
 

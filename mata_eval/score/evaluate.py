@@ -29,7 +29,7 @@ from ..run.config import Experiment
 from . import metrics
 from .metrics import Aggregate, BlockFrequency, SequenceScores
 
-SCORES = "scores.json"
+SCORES = results.SCORES
 LAYOUTS = ("mata", "pysot", "got10k", "pytracking")
 SCORES_FORMAT = 1
 
