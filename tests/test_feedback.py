@@ -58,7 +58,7 @@ class RecordingTracker:
 
 def toy_sequence(n):
     return Sequence("toy", np.tile(BOX.as_array(), (n, 1)), fps=FPS,
-                    loader=lambda k: np.full((2, 2, 3), k, np.uint8))
+                    loader=lambda k: np.full((480, 640, 3), k, np.uint8))
 
 
 def test_scheduler_hands_no_prior_when_the_estimate_withholds_it():
@@ -145,7 +145,7 @@ def test_carry_hands_the_trackers_box_moved_by_the_camera_not_the_smoothed_estim
     pan = {k: 15.0 for k in range(1, 10)}
     start = Box(BOX.x - 10.0, BOX.y, BOX.w, BOX.h)
     seq = Sequence("toy", np.tile(start.as_array(), (10, 1)), fps=FPS,
-                   loader=lambda k: np.full((2, 2, 3), k, np.uint8))
+                   loader=lambda k: np.full((480, 640, 3), k, np.uint8))
     errors = {}
     for carry in (False, True):
         tracker = WorldStillTracker(pan)

@@ -126,8 +126,9 @@ def test_camera_compensation_matters_under_a_shaky_camera():
 # --- end to end through the scheduler (EOP, tracker at 10 Hz, one-period latency, feedback) -------
 
 def _frame(k: int) -> np.ndarray:
-    """A 2x2 image that carries its own frame index (the fake blocks below read it back)."""
-    img = np.zeros((2, 2, 3), np.uint8)
+    """A 1280x720 image (it bounds the estimates) that carries its own frame index (the fake
+    blocks below read it back)."""
+    img = np.zeros((720, 1280, 3), np.uint8)
     img[0, 0, 0], img[0, 0, 1] = k % 256, k // 256
     return img
 
@@ -190,8 +191,11 @@ def _run_eop(estimator, camera, n=120, seed=0):
 def test_feedback_keeps_the_lock_under_eop_with_a_shaky_camera():
     """Tracker at 10 Hz with a 25 px search radius, camera jumping ~8 px per frame: alone it loses
     the target; the EKF estimate fed back as search centre, with the one-period latency
-    compensated, keeps it. (The first 6 frames carry the unknown initial velocity.)"""
-    cam = shaky_camera(1)
+    compensated, keeps it. (The first 6 frames carry the unknown initial velocity.) The target
+    starts 150 px lower than in the tests above, so that its walk stays in the 1280x720 image
+    (estimates are kept within half a box of it; from the top-left start it leaves the top)."""
+    shaky, down = shaky_camera(1), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 150.0], [0.0, 0.0, 1.0]])
+    cam = lambda k: shaky(k) @ down  # noqa: E731
     alone = _run_eop(None, cam)
     mata = _run_eop(HomographyEKF(P(delay="compensate")), cam)
     ignore = _run_eop(HomographyEKF(P(delay="ignore")), cam)

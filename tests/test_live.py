@@ -44,7 +44,7 @@ TRACKER_PUBLISHES = [0.300, 0.700, 1.300]  # the first is the init's (no output)
 
 def sequence(n, fps):
     gt = np.tile(INIT.as_array(), (n, 1))
-    return Sequence("toy", gt, fps=fps, loader=lambda k: np.full((2, 2, 3), k, np.uint8))
+    return Sequence("toy", gt, fps=fps, loader=lambda k: np.full((480, 640, 3), k, np.uint8))
 
 
 class Tracker:

@@ -34,7 +34,7 @@ class OneSequence:
 
     def sequences(self):
         gt = np.tile([-1.0, 0.0, 10.0, 10.0], (self.params.n, 1))
-        return [Sequence("seqA", gt, 30.0, loader=lambda k: np.full((4, 4, 3), k, np.uint8))]
+        return [Sequence("seqA", gt, 30.0, loader=lambda k: np.full((480, 640, 3), k, np.uint8))]
 
 
 class FrameIndexTracker:

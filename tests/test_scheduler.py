@@ -21,7 +21,8 @@ INIT = Box(-1.0, 0.0, 10.0, 10.0)
 
 
 def make_sequence(n=30, fps=30.0, frame_of=lambda k: k, reads=None, broken=None):
-    """Tiny sequence whose frame k is a 2x2 image filled with ``frame_of(k)``."""
+    """Toy sequence whose frame k is a 640x480 image filled with ``frame_of(k)`` (the size bounds
+    the estimates, ``Estimate.within``)."""
     gt = np.tile(INIT.as_array(), (n, 1))
 
     def loader(k):
@@ -29,7 +30,7 @@ def make_sequence(n=30, fps=30.0, frame_of=lambda k: k, reads=None, broken=None)
             reads.append(k)
         if broken is not None and k == broken:
             raise FrameReadError(f"cannot read frame {k} of sequence 'toy': missing.jpg")
-        return np.full((2, 2, 3), frame_of(k), dtype=np.uint8)
+        return np.full((480, 640, 3), frame_of(k), dtype=np.uint8)
 
     return Sequence("toy", gt, fps=fps, loader=loader)
 

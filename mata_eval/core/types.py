@@ -10,7 +10,7 @@ Conventions used everywhere in mata-eval:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any, Callable, Generic, Hashable, Mapping, TypeVar
 
@@ -173,6 +173,26 @@ class Estimate:
         if not self.feedback:
             return None
         return self.box.center if self.search is None else self.search
+
+    def within(self, width: float, height: float, margin: float = 0.5) -> "Estimate":
+        """This estimate kept within ``margin`` boxes of a ``width`` x ``height`` image (issue 14:
+        a coasting estimate must not run away): the box centre, and the search centre if one is
+        named, clamped to the image grown by ``margin`` times the box size on each side (the
+        default leaves at least a corner of the box on the image). The estimate itself, unchanged,
+        when both centres already lie there. The size and the covariance are kept."""
+        b = self.box
+        mx, my = margin * max(b.w, 0.0), margin * max(b.h, 0.0)
+
+        def clamp(c: tuple[float, float]) -> tuple[float, float]:
+            return min(max(c[0], -mx), width + mx), min(max(c[1], -my), height + my)
+
+        centre = clamp(b.center)
+        search = None if self.search is None else clamp(self.search)
+        if centre == b.center and search == self.search:
+            return self
+        x = b.x if centre[0] == b.cx else centre[0] - b.w / 2.0  # an axis inside keeps its bits
+        y = b.y if centre[1] == b.cy else centre[1] - b.h / 2.0
+        return replace(self, box=Box(x, y, b.w, b.h), search=search)
 
 
 @dataclass(frozen=True, eq=False)

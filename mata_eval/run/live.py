@@ -12,7 +12,8 @@ Model of time (docs/live.md):
   ``track(image, prior)``, the prior being the search centre of the newest estimate published
   before it starts (``Estimate.prior``: its centre, or none when it withholds it). Estimator: one
   tick per frame it takes, ``step(T_k, motions, detections)`` with every output published since
-  its previous tick, oldest first, each ``Stamped(value, T_capture, t_publish)``.
+  its previous tick, oldest first, each ``Stamped(value, T_capture, t_publish)``; its estimate is
+  kept within half a box of the image (``Estimate.within``, as in the scheduler).
 - **time_scale** ``s`` (one value or per block): a call whose work took ``d`` seconds publishes
   ``s d`` after it started; the worker sleeps ``(s - 1) d`` (a device ``s`` times slower, each block
   on its own core; the sleep leaves the CPU to the other blocks).
@@ -256,6 +257,8 @@ def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], fl
         try:
             value = call()
             _check(block, value, first)
+            if block == "estimator":  # kept within half a box of the image, as in the scheduler
+                value = value.within(image.shape[1], image.shape[0])
         except Exception as exc:
             err = BlockError(block, k, t_k, f"{type(exc).__name__}: {exc}")
             err.__cause__ = exc

@@ -14,7 +14,8 @@ split around the tracker (DESIGN.md): it first takes the camera motion and the d
 at ``t_k`` (so the tracker's search centre at frame k is the estimate at frame k), then, when the
 tracker published a detection at ``t_k`` itself (zero latency), a second ``step(t_k, (), dets)``
 at the same time folds it into the estimate of frame k; the two calls are one tick (one start,
-one latency, their wall times summed). The scored value of frame
+one latency, their wall times summed). Every estimate is kept within half a box of the image
+(``Estimate.within``: a coasting estimate does not run away, issue 14). The scored value of frame
 ``k`` is the newest output of the output block (the estimator, or the tracker without one)
 visible at ``t_k``: a zero-order hold.
 
@@ -390,6 +391,12 @@ def sequence_steps(
 
     free_tracker = "tracker" in active and timing.blocks["tracker"].free_start
 
+    def bounded(value: Estimate) -> Estimate:
+        """The estimate kept within half a box of the image (:meth:`Estimate.within`)."""
+        if frame_size is None:
+            frame_image()  # frame 0, which the tracker reads at this frame anyway
+        return value.within(*frame_size)
+
     def prior_at(t: float) -> tuple[float, float] | None:
         """The tracker's search centre: the newest estimate that reached it by ``t``."""
         if feedback and estimator is not None:
@@ -450,6 +457,7 @@ def sequence_steps(
                     value = _call(alarm, "estimator", k, tk, estimator.step, tk, (), dets)
                     wall_ms["estimator"][k] += 1e3 * (clock() - t0)
                     _check_estimate(value, k, tk)
+                    value = bounded(value)
                     boards["estimator"].post(value, tk, k, est_tick)
                 continue
             if b not in turns or not turns[b][k]:
@@ -498,6 +506,7 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
                 _check_estimate(value, k, tk)
+                value = bounded(value)
             t_pub = publish(b, k, tk, value, wall, first)
             if b == "estimator" and not first:
                 est_tick = t_pub
