@@ -63,7 +63,8 @@ class Box:
     @property
     def is_valid(self) -> bool:
         """Finite with positive width and height."""
-        return bool(all(map(math.isfinite, (self.x, self.y, self.w, self.h))) and self.w > 0 and self.h > 0)
+        return bool(0 < self.w < math.inf and 0 < self.h < math.inf
+                    and math.isfinite(self.x) and math.isfinite(self.y))
 
 
 class FrameImage(np.ndarray):

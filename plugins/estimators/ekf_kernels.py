@@ -13,9 +13,10 @@ a few microseconds. What it exploits (paper eq. ekf_velocity_1 and the partial u
 - only upper triangles are computed where the result is symmetrised anyway.
 
 Equal to the numpy path to rounding (tests/test_ekf_kernels.py: 1e-9 px over seeded ticks of
-both presets). Policy stays in Python (``HomographyEKF``): the confidence gate, the composition
-of several motions, q_adapt's average (from the d2 returned here); the state-dependent tests
-(front of camera, tau_sigma, chi2 inflation) are here because they need the state mid-tick.
+both presets). Policy stays in Python (``HomographyEKF``): the confidence gate and the composition
+of several motions; the state-dependent tests (front of camera, tau_sigma, chi2 inflation) and
+q_adapt's innovation average (of the d2 each box update computes) are here because they need the
+state mid-tick.
 
 Compiling takes 12 to 17 CPU-s here, once: the cache (``cache=True``) sits next to this file, or in
 the user's cache directory when the package is read-only, and a later process loads it in about
@@ -40,21 +41,21 @@ IMPLEMENTS = frozenset({
 
 # cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
- C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT) = range(14)
-N_CFG = 14
+ C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA) = range(15)
+N_CFG = 15
 # the motion input of a tick
 MOTION_NONE, MOTION_H, MOTION_H_COV = 0, 1, 2
 
 
 def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
            r_box: float, r_box_rel: float, r_conf: bool, q_box_rel: float, follow: float, decay: float,
-           p0_v: float, q_adapt: bool = False) -> np.ndarray:
+           p0_v: float, q_adapt: bool, alpha: float) -> np.ndarray:
     """The ``cfg`` vector of :func:`tick` (HomographyEKF's resolved parameters)."""
     cfg = np.empty(N_CFG)
     cfg[[C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL, C_R_CONF,
-         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT]] = [
+         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA]] = [
         n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
-        follow, decay, p0_v, q_adapt]
+        follow, decay, p0_v, q_adapt, alpha]
     return cfg
 
 
@@ -182,10 +183,7 @@ def _joseph_block(x, P, z, s, R):
     P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. The
     loops run over rows (independent sums, which the compiler vectorises)."""
     n, m = x.shape[0], z.shape[0]
-    B = np.empty((m, n))                # E P: the measured rows
-    for a in range(m):
-        for j in range(n):
-            B[a, j] = P[s + a, j]
+    B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
     S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
@@ -301,9 +299,7 @@ def _velocity_prior(x, P, cfg, dt, n_used):
     relax = n_used >= 1 and tau > 0.0
     if not (mix or relax):
         return
-    h = np.empty(9)
-    for k in range(9):
-        h[k] = x[4 + k]
+    h = x[4:13]                         # a view: only the velocity entries are written below
     cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
     u, v, w = _uvw(h, cx, cy)
     J = np.empty((2, 2))
@@ -356,9 +352,7 @@ def _predict(x, P, cfg, q, dt, nis):
     the boxes' average normalised innovation squared (q_adapt)."""
     n = x.shape[0]
     nd = int(cfg[C_NDERIV])
-    h = np.empty(9)
-    for k in range(9):
-        h[k] = x[4 + k]
+    h = x[4:13]                         # a view: x is written last
     x1, y1, x2, y2 = x[0], x[1], x[2], x[3]
     cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
     wdisp = np.empty(nd)                # ekf_math.taylor
@@ -524,11 +518,23 @@ def _update_box(x, P, cfg, z, conf):
 
 
 @_njit
-def tick(x0, P0, cfg, q, floor, dt, n_used, nis, H, C, motion, Z, confs, n_boxes, x, P, d2):
+def _innovation_average(nis, d2, cfg):
+    """ekf_math.normalised_innovation_average over the 4 corners, capped at chi2_gate (if set)."""
+    if np.isnan(d2):
+        return nis
+    term = (d2 if cfg[C_CHI2] == 0.0 else min(d2, cfg[C_CHI2])) / 4.0
+    if not np.isfinite(term):
+        return nis
+    return cfg[C_ALPHA] * term + (1.0 - cfg[C_ALPHA]) * nis
+
+
+@_njit
+def tick(x0, P0, cfg, q, floor, dt, n_used, nis, H, C, motion, Z, confs, n_boxes, x, P):
     """One tick (HomographyEKF._tick_state): motion update (before or after the prediction),
     velocity prior and prediction when dt > 0, the used boxes Z[:n_boxes] with their
-    confidences (as the box noise sees them). Writes x, P and each box's d2 (see _update_box);
-    returns False when the result is not finite (the caller then holds the previous state)."""
+    confidences (as the box noise sees them). Writes x, P and returns q_adapt's innovation
+    average after the boxes (``nis`` unchanged without q_adapt), or NaN when the result is not
+    finite (the caller then holds the previous state)."""
     n = x0.shape[0]
     for i in range(n):
         x[i] = x0[i]
@@ -544,11 +550,13 @@ def tick(x0, P0, cfg, q, floor, dt, n_used, nis, H, C, motion, Z, confs, n_boxes
     if use_h and not before:
         _update_motion(x, P, cfg, floor, H, C, motion)
     for b in range(n_boxes):
-        d2[b] = _update_box(x, P, cfg, Z[b], confs[b])
+        d2 = _update_box(x, P, cfg, Z[b], confs[b])
+        if cfg[C_Q_ADAPT] != 0.0:
+            nis = _innovation_average(nis, d2, cfg)
     for i in range(x.shape[0]):
         if not np.isfinite(x[i]):
-            return False
+            return np.nan
         for j in range(x.shape[0]):
             if not np.isfinite(P[i, j]):
-                return False
-    return True
+                return np.nan
+    return nis

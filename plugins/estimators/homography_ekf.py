@@ -23,7 +23,7 @@ import math
 import os
 import statistics
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping, Sequence
+from typing import Any, Literal, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -102,8 +102,10 @@ def _median_of_ranked(r: tuple[float, ...]) -> float:
     return r[i] if len(r) % 2 else (r[i - 1] + r[i]) / 2
 
 
-@dataclass(frozen=True)
-class GateState:
+# GateState and FilterState are built on every tick: immutable named tuples rather than frozen
+# dataclasses, which take twice as long to build (issue 18: the tick's bookkeeping).
+
+class GateState(NamedTuple):
     """Block A's gate memory: the EWMA S_k and the confidences of the accepted boxes."""
 
     ewma: float | None = None
@@ -113,8 +115,7 @@ class GateState:
     nis: float = 1.0  # q_adapt: average normalised innovation squared of the used boxes
 
 
-@dataclass(frozen=True)
-class FilterState:
+class FilterState(NamedTuple):
     """Everything a tick changes: state, covariance and the gate's memory."""
 
     x: np.ndarray
@@ -298,10 +299,9 @@ class HomographyEKF:
                 n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
                 gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
-                p0_v=p.p0_v, q_adapt=p.q_adapt)
+                p0_v=p.p0_v, q_adapt=p.q_adapt, alpha=p.alpha_ewma)
             self._boxes = np.empty((4, 4))      # the used boxes of a tick (grown on demand)
             self._confs = np.empty(4)
-            self._d2 = np.empty(4)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
@@ -396,19 +396,18 @@ class HomographyEKF:
     def _tick_compiled(self, tick: _Tick) -> FilterState:
         """:meth:`_tick_state` with the algebra in one compiled call (``ekf_kernels.tick``): the
         policy that needs no state (motion validity and composition, the confidence gate) is
-        decided here, exactly as the numpy path decides it; q_adapt's average takes the d2 the
-        kernel returns for each used box."""
+        decided here, exactly as the numpy path decides it; q_adapt's average is the kernel's."""
         b = tick.before
         no_motion, with_h, with_cov = self._motion_codes
         H, C, motion = self._no_h, self._no_cov, no_motion
         ms = tick.motions
         if len(ms) == 1 and self.params.camera:     # validity tested in the kernel
             m = ms[0].value
-            H = np.asarray(m.H, dtype=float)
+            H = np.asarray(m.H, float)
             if m.valid and H.shape == (3, 3):
                 motion = with_h
                 if m.cov is not None:
-                    C = np.asarray(m.cov, dtype=float)
+                    C = np.asarray(m.cov, float)
                     motion = with_cov if C.shape == (9, 9) else no_motion
         elif ms:
             meas = self._motion_measurement(ms)
@@ -424,19 +423,16 @@ class HomographyEKF:
                 if k == len(self._confs):
                     self._boxes = np.resize(self._boxes, (2 * k, 4))
                     self._confs = np.resize(self._confs, 2 * k)
-                    self._d2 = np.resize(self._d2, 2 * k)
                 self._boxes[k] = d.value.box.corners()
                 self._confs[k] = conf
                 k += 1
-        x, P = np.empty_like(b.x), np.empty_like(b.P)
-        ok = self._kernel(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, b.gate.nis,
-                          H, C, motion, self._boxes, self._confs, k, x, P, self._d2)
-        if not ok:
+        n = len(b.x)
+        x, P = np.empty(n), np.empty((n, n))
+        nis = self._kernel(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, gate.nis,
+                           H, C, motion, self._boxes, self._confs, k, x, P)
+        if nis != nis:                          # NaN: a degenerate input, held
             return b
-        if self.params.q_adapt and k:
-            nis = gate.nis
-            for d2 in self._d2[:k].tolist():     # in the order the boxes were used
-                nis = self._innovation_average(nis, d2)
+        if nis != gate.nis:                     # q_adapt's average moved
             gate = GateState(gate.ewma, gate.accepted, gate.n_used, gate.ranked, nis)
         return FilterState(x, P, gate)
 
@@ -546,7 +542,7 @@ class HomographyEKF:
         R = self._box_noise(x, conf)
         if p.q_adapt:  # before R is inflated: d2 measures the prediction against the box's R
             d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R)
-            gate = dataclasses.replace(gate, nis=self._innovation_average(gate.nis, d2))
+            gate = gate._replace(nis=self._innovation_average(gate.nis, d2))
         if p.gating and p.chi2_gate:
             R = em.robust_noise(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS], R, p.chi2_gate)
         x, P = em.joseph_update_block(x, P, z, em.CORNERS, R)
