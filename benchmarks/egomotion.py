@@ -2,9 +2,11 @@
 (BoT-SORT's camera-motion module) measured in the same run.
 
     python benchmarks/egomotion.py [--sequences 5] [--frames 30] [--threads 1]
+        [--variant NAME:KEY=VALUE,...]...
 
 Prints, per method (grid_lk; grid_lk with the forward-backward check; grid_lk with OpenCV's
-21-pixel LK window; features; identity):
+21-pixel LK window; features; identity; each ``--variant``, grid_lk with those parameters, e.g.
+``--variant ds3:downscale=3`` to weigh a cheaper setting against the default):
 - ms per frame of ``estimate`` at 1280x720: median CPU time of the process (the figure used for
   the ratios: on a shared machine it does not count time spent waiting for a core) and median
   wall time; OpenCV limited to ``--threads`` threads; the methods run interleaved frame by frame,
@@ -28,6 +30,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from mata_eval.data import synth
 from mata_eval_plugins.egomotion import homography_covariance as hc
@@ -39,19 +42,34 @@ REPO = Path(__file__).resolve().parents[1]
 REAL = ("wakeboard7", "wakeboard10")
 
 
-def methods() -> dict[str, object]:
+def methods(variants: dict[str, dict] | None = None) -> dict[str, object]:
+    """The compared methods; ``variants``: more grid_lk ones, name -> parameters."""
     return {
         "grid_lk": GridLK(),
         "grid_lk+fb": GridLK(GridLK.Params(fb_threshold=1.0)),
         "grid_lk w21": GridLK(GridLK.Params(win_size=21)),
         "features": FeatureLK(),
         "identity": IdentityMotion(),
+        **{name: GridLK(GridLK.Params(**kw)) for name, kw in (variants or {}).items()},
     }
 
 
-def run_pairs(frames, names: list[str]):
+def parse_variant(text: str) -> tuple[str, dict]:
+    """``NAME:KEY=VALUE,KEY=VALUE`` (values in YAML: 3, 2.5, true) -> (NAME, parameters)."""
+    name, sep, body = text.partition(":")
+    try:
+        kw = {k.strip(): yaml.safe_load(v) for k, v in (item.split("=", 1) for item in body.split(","))}
+        GridLK.Params(**kw)
+    except (ValueError, TypeError) as exc:
+        raise SystemExit(f"--variant {text!r}: expected NAME:KEY=VALUE,... with grid_lk parameters ({exc})")
+    if not (sep and name):
+        raise SystemExit(f"--variant {text!r}: expected NAME:KEY=VALUE,...")
+    return name, kw
+
+
+def run_pairs(frames, names: list[str], variants: dict[str, dict] | None = None):
     """Run every method over the frames, interleaved; yields (k, {name: (Motion, cpu s, wall s)})."""
-    ms = methods()
+    ms = methods(variants)
     for m in ms.values():
         m.initialize(frames[0])
     for k in range(1, len(frames)):
@@ -85,10 +103,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--height", type=int, default=720)
     ap.add_argument("--seed", type=int, default=0, help="synthetic suite seed")
     ap.add_argument("--threads", type=int, default=1, help="cv2.setNumThreads (0: OpenCV's default)")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                    help="also run grid_lk with these parameters, e.g. ds3:downscale=3 (repeatable)")
     args = ap.parse_args(argv)
     if args.threads > 0:
         cv2.setNumThreads(args.threads)
-    names = list(methods())
+    variants = dict(parse_variant(v) for v in args.variant)
+    names = list(methods(variants))
     W, H = args.width, args.height
 
     # --- synthetic suite: exact homographies -------------------------------------------------
@@ -99,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     n_pairs = 0
     for spec in synth.suite_specs(args.sequences, args.frames, W, H, seed=args.seed):
         r = synth.render_sequence(spec)
-        for k, out in run_pairs(r.frames, names):
+        for k, out in run_pairs(r.frames, names, variants):
             n_pairs += 1
             for n, (mo, cpu, wall) in out.items():
                 times[n].append(cpu)
@@ -130,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         frames = [cv2.imread(str(p)) for p in sorted(img.glob("*.jpg"))]
         resid: dict[str, list[float]] = {n: [] for n in names}
-        for k, out in run_pairs(frames, names):
+        for k, out in run_pairs(frames, names, variants):
             for n, (mo, cpu, _) in out.items():
                 real_times[n].append(cpu)
                 resid[n].append(photometric_residual(frames[k - 1], frames[k], mo.H) if mo.valid else np.nan)

@@ -2,10 +2,12 @@
 the baseline run (KCF alone) under LTP, measured in the same process, interleaved.
 
     OMP_NUM_THREADS=1 python benchmarks/mata_overhead.py [--frames 60] [--repeat 5] [--decode]
+        [--grid-lk KEY=VALUE]...
 
 Frames of the real 1280x720 and 1024x540 sequences of ``$MATA_SHARED_DATA/sequences/aerial30``
 are decoded once, before any timing (decoding costs both runs the same), or with ``--decode`` in
-each run, as ``mata-eval run`` does. Each repetition runs
+each run, as ``mata-eval run`` does; ``--grid-lk`` sets a parameter of MATA's block B (to weigh a
+cheaper setting, e.g. ``--grid-lk grid_cols=12 --grid-lk grid_rows=12``). Each repetition runs
 the baseline then MATA over every sequence, OpenCV on one thread. Prints, min and median over
 the repetitions:
 - CPU seconds of the baseline run and of the MATA run, and their ratio (target <= 1.25), and
@@ -17,6 +19,7 @@ the repetitions:
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import time
@@ -24,6 +27,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from mata_eval.core.sequence import Sequence
 from mata_eval.run.scheduler import run_sequence
@@ -45,9 +49,9 @@ def load(root: Path, name: str, frames: int, decode: bool) -> Sequence:
     return Sequence(name, gt, fps=30.0, loader=images.__getitem__)
 
 
-def one_run(seq: Sequence, mata: bool):
+def one_run(seq: Sequence, mata: bool, grid_lk: dict | None = None):
     c0 = time.process_time()
-    run = run_sequence(seq, KCF(KCF.Params()), GridLK() if mata else None,
+    run = run_sequence(seq, KCF(KCF.Params()), GridLK(GridLK.Params(**(grid_lk or {}))) if mata else None,
                        HomographyEKF(HomographyEKF.Params()) if mata else None, LTP(), np.random.default_rng(0),
                        clock=time.process_time)
     return time.process_time() - c0, run
@@ -58,7 +62,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--decode", action="store_true", help="decode the JPEG frames in each run (counted on both sides)")
+    ap.add_argument("--grid-lk", action="append", default=[], metavar="KEY=VALUE",
+                    help="a grid_lk parameter of the MATA run (repeatable; value in YAML)")
     args = ap.parse_args(argv)
+    grid_lk = {}
+    for item in args.grid_lk:
+        key, sep, value = item.partition("=")
+        if not (sep and key in {f.name for f in dataclasses.fields(GridLK.Params)}):
+            ap.error(f"--grid-lk {item!r}: expected KEY=VALUE with a grid_lk parameter as KEY")
+        grid_lk[key] = yaml.safe_load(value)
+    try:
+        GridLK.Params(**grid_lk)
+    except ValueError as exc:
+        ap.error(f"--grid-lk: {exc}")
     cv2.setNumThreads(1)
     root = Path(os.environ.get("MATA_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
     root = root / "sequences" / "aerial30"
@@ -67,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no sequences under {root}: set MATA_SHARED_DATA")
         return 1
     seqs = [load(root, n, args.frames, args.decode) for n in names]
-    one_run(seqs[0], True)  # untimed: loads block C's compiled tick (once per process)
+    one_run(seqs[0], True, grid_lk)  # untimed: loads block C's compiled tick (once per process)
     base_cpu, mata_cpu, ego_ms, est_ms = [], [], {}, []
     blocks: dict[str, list[float]] = {}  # CPU s of each block over the sequences, per repetition
     for _ in range(args.repeat):
@@ -77,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             cpu, run = one_run(seq, False)
             b += cpu
             sums["baseline tracker"] = sums.get("baseline tracker", 0.0) + np.nansum(run.wall_ms["tracker"]) / 1e3
-            cpu, run = one_run(seq, True)
+            cpu, run = one_run(seq, True, grid_lk)
             m += cpu
             for block, ms in run.wall_ms.items():
                 sums[f"MATA {block}"] = sums.get(f"MATA {block}", 0.0) + np.nansum(ms) / 1e3
@@ -91,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     n_frames = sum(len(s) for s in seqs)
     ratio = np.array(mata_cpu) / np.array(base_cpu)
     print(f"{len(seqs)} sequences ({', '.join(names)}), {n_frames} frames, LTP, KCF, {args.repeat} repetitions, "
-          f"OpenCV threads 1, frames {'decoded in each run' if args.decode else 'decoded before timing'}")
+          f"OpenCV threads 1, frames {'decoded in each run' if args.decode else 'decoded before timing'}"
+          + (f", grid_lk {grid_lk}" if grid_lk else ""))
     print(f"  baseline run (KCF)           CPU s  min {min(base_cpu):.3f}  median {np.median(base_cpu):.3f}")
     print(f"  MATA run (KCF+grid_lk+EKF)   CPU s  min {min(mata_cpu):.3f}  median {np.median(mata_cpu):.3f}")
     print(f"  ratio MATA / baseline (per repetition)  min {ratio.min():.3f}  median {np.median(ratio):.3f}  "
