@@ -11,7 +11,9 @@ with its NT2F (metric profile ``--profile``: ``default`` is eq. nt2f, ``T_f / N`
 ``nt2f-valid`` counts only frames with ground truth, the reading issue 15's figures used). Target: the default synthetic suite (``--motion uav123``) within 10 % of UAV123 on
 the 10 Hz NT2F and on the motion statistics. Camera motion: grid-LK homographies (block B,
 ``grid_lk`` defaults) of the real sequences in ../shared/data/sequences, the exact homographies
-of the synthetic suite. The synthetic suite is rendered in memory (nothing written).
+of the synthetic suite. The synthetic suite is rendered in memory (nothing written); its exact
+ground truth is put on UAV123's annotation grid (whole pixels of a 1280x720 frame, at any render
+size) before it is scored and measured, so that both carry the same quantisation noise.
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from mata_eval.data.datasets.uavdt import UAVDT
 from mata_eval.data.synth import suite_specs
 from mata_eval.data.synth.render import render
 from mata_eval.score.metrics import summarize
-from mata_eval.score.motion_stats import camera_motion, camera_rates, estimate_homographies, target_motion
+from mata_eval.score.motion_stats import (camera_motion, camera_rates, estimate_homographies, on_annotation_grid,
+                                          target_motion)
 from mata_eval.score.oracle import oracle_scores
 
 #: Real footage for the camera statistics: (folder under sequences/, fps).
@@ -71,11 +74,13 @@ def real_datasets(root: Path) -> dict[str, list[Sequence]]:
 
 
 def synthetic(args: argparse.Namespace, motion: str) -> tuple[list[Sequence], np.ndarray]:
-    """The suite's ground truth (in memory, frames discarded) and its camera rates."""
+    """The suite's ground truth (in memory, frames discarded) as UAV123's annotators would have
+    written it (whole pixels of a 1280x720 frame: :func:`on_annotation_grid`), and its camera
+    rates."""
     seqs, rates = [], []
     for sp in suite_specs(args.n_sequences, args.n_frames, args.width, args.height, args.seed, motion=motion):
         r = render(sp, lambda k, img: None)
-        seqs.append(Sequence(sp.name, r.groundtruth, sp.fps))
+        seqs.append(Sequence(sp.name, on_annotation_grid(r.groundtruth, sp.width), sp.fps))
         rates.append(camera_rates(r.homographies[1:], sp.width, sp.height, sp.fps))
     return seqs, rates
 

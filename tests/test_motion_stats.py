@@ -11,7 +11,8 @@ import pytest
 from mata_eval.core.registry import load_registry
 from mata_eval.core.sequence import Sequence
 from mata_eval.score.metrics import summarize
-from mata_eval.score.motion_stats import camera_motion, camera_rates, similarity_parts, target_motion
+from mata_eval.score.motion_stats import (camera_motion, camera_rates, on_annotation_grid, similarity_parts,
+                                          target_motion)
 from mata_eval.score.oracle import oracle_run, oracle_scores
 
 
@@ -56,6 +57,20 @@ def test_target_motion_scale_and_pooling():
     assert m.at(3).displacement_p90 == pytest.approx(0.0, abs=1e-12)
     assert m.at(3).scale_p90 == pytest.approx(3 * math.log(1.1))
     assert m.at(3).scale_median == pytest.approx(1.5 * math.log(1.1))  # half the pairs grow, half not
+
+
+def test_on_annotation_grid_rounds_x_y_w_h_to_whole_pixels_of_the_annotated_frame():
+    """At 1280 wide: 10.4 -> 10, 5.5001 -> 6, 20.3 -> 20, 7.2 -> 7 (each of x, y, w, h, as
+    UAV123's integer files). At 320 wide the grid is a quarter pixel: 2.6 -> 2.5, 5.1 -> 5.0,
+    1.13 -> 1.25. NaN rows stay NaN; a box that grows by less than half a grid pixel keeps
+    exactly the same size (the zero scale changes of integer annotations)."""
+    got = on_annotation_grid(np.array([[10.4, 5.5001, 20.3, 7.2], [np.nan] * 4]), 1280)
+    np.testing.assert_array_equal(got[0], [10.0, 6.0, 20.0, 7.0])
+    assert np.all(np.isnan(got[1]))
+    np.testing.assert_array_equal(on_annotation_grid(np.array([2.6, 1.13, 5.1, 2.0]), 320), [[2.5, 1.25, 5.0, 2.0]])
+    slow = np.array([[100.0 + 0.3 * k, 50.0, 30.0 + 0.04 * k, 20.0] for k in range(10)])
+    assert target_motion([on_annotation_grid(slow, 1280)]).at(3).scale_median == 0.0
+    assert target_motion([slow]).at(3).scale_median > 0.0
 
 
 # --- camera motion ---------------------------------------------------------------------------

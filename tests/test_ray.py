@@ -27,13 +27,23 @@ from mata_eval.types import Box, TrackerOutput  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def cluster():
+def cluster(tmp_path_factory):
+    """The cluster, and the suite cache its workers use: they take the environment of
+    ``ray.init``, so the cache is set before it (else they read and fill the user's cache,
+    where a suite of the same generator version but older pixels may wait)."""
     os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a throw-away cluster on this machine
+    cache = tmp_path_factory.mktemp("cache")
+    before = os.environ.get("MATA_EVAL_CACHE")
+    os.environ["MATA_EVAL_CACHE"] = str(cache)
     ray.init(num_cpus=2, include_dashboard=False, logging_level="error", log_to_driver=False)
     # The workers cannot import this test module: send its toy plugins by value.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    yield
+    yield cache
     ray.shutdown()
+    if before is None:
+        os.environ.pop("MATA_EVAL_CACHE", None)
+    else:
+        os.environ["MATA_EVAL_CACHE"] = before
 
 
 def _quiet(_: str) -> None:
@@ -45,7 +55,7 @@ def test_ray_writes_the_same_files_as_the_local_executor(cluster, tmp_path, monk
     if "synthetic" not in reg.plugins["dataset"] or "kcf" not in reg.plugins["tracker"] \
             or "grid_lk" not in reg.plugins["egomotion"] or "homography_ekf" not in reg.plugins["estimator"]:
         pytest.skip("the synthetic dataset or the kcf, grid_lk, homography_ekf plugins are not installed")
-    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))  # the Ray workers inherit it
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(cluster))  # the cache the Ray workers were started with
     p = tmp_path / "exp.yaml"
     p.write_text(textwrap.dedent("""\
         dataset: {name: synthetic, n_sequences: 2, n_frames: 8, width: 128, height: 96, jobs: 1}
