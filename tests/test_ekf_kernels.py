@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from mata_eval.types import Box, Motion, Stamped, TrackerOutput
-from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
+from mata_eval_plugins.estimators.homography_ekf import CONFIDENCE_HISTORY, HomographyEKF
 
 P = HomographyEKF.Params
 FPS = 30.0
@@ -19,13 +19,14 @@ numba = pytest.importorskip("numba", reason="the compiled tick needs the `fast` 
 from mata_eval_plugins.estimators import ekf_kernels  # noqa: E402  (needs numba)
 
 
-def scenario(seed: int, n: int = 90, delay: bool = False):
+def scenario(seed: int, n: int = 90, delay: bool = False, box_every: int = 2):
     """Per tick: (t, motions, detections). A rolling, zooming, panning camera with measured
     covariances and every kind of input the filter has to survive: boxes of varying confidence
-    (some rejected by the confidence gates), far outliers (chi2 inflation), invalid boxes
-    (NaN, zero width), invalid motions (flag, NaN, h33 = 0, a plane behind the camera, an
-    absurd H that overflows), covariances too large for tau_sigma, two motions in one tick
-    (composition), two boxes in one tick, and with ``delay`` boxes that arrive late."""
+    (some rejected by the confidence gates; ties in the relative gate's history; NaN, infinite
+    and negative confidences), far outliers (chi2 inflation), invalid boxes (NaN, a NaN or
+    infinite corner, zero width), invalid motions (flag, NaN, h33 = 0, a plane behind the
+    camera, an absurd H that overflows), covariances too large for tau_sigma, two motions in one
+    tick (composition), two boxes in one tick, and with ``delay`` boxes that arrive late."""
     rng = np.random.default_rng(seed)
     box = np.array([300.0, 200.0, 340.0, 230.0])
     ticks, pending = [], []
@@ -52,8 +53,9 @@ def scenario(seed: int, n: int = 90, delay: bool = False):
         if k % 13 == 0:                                         # two intervals in one tick
             motions = [Stamped(Motion(H, cov), t - 0.5 / FPS, t - 0.5 / FPS), Stamped(Motion(H, cov), t, t)]
         box = box + np.array([H[0, 2], H[1, 2], H[0, 2], H[1, 2]]) + rng.normal(0, 0.5, 4)
-        if k % 2 == 0:
-            conf = float(np.clip(0.7 + 0.25 * rng.normal(), 0, 1)) if k % 7 else 0.03  # R's floor
+        if k % box_every == 0:
+            conf = round(float(np.clip(0.7 + 0.25 * rng.normal(), 0, 1)), 2) if k % 7 else 0.03  # R's floor
+            conf = {4: np.nan, 34: np.nan, 44: -0.2, 52: np.inf}.get(k, conf)  # 4: a NaN median
             z = box + rng.normal(0, 2.0, 4)
             if k % 19 == 0:
                 z = z + 80.0                                    # far outlier: chi2 inflation
@@ -62,7 +64,9 @@ def scenario(seed: int, n: int = 90, delay: bool = False):
             if k % 29 == 0:
                 z[2] = z[0]                                     # zero width
             lag = rng.integers(0, 4) / FPS if delay else 0.0
-            pending.append(Stamped(TrackerOutput(Box.from_corners(*z), conf), t, t + lag))
+            b = Box.from_corners(*z)
+            b = {56: Box(np.nan, b.y, b.w, b.h), 62: Box(b.x, np.inf, b.w, b.h)}.get(k, b)
+            pending.append(Stamped(TrackerOutput(b, conf), t, t + lag))
             if k % 31 == 0:
                 pending.append(Stamped(TrackerOutput(Box.from_corners(*(z + 1.0)), 0.9), t, t + lag))
         dets = [d for d in pending if d.t_publish <= t + 1e-9]
@@ -109,9 +113,32 @@ def test_compiled_tick_equals_the_numpy_reference(preset, case):
         assert np.array_equal(np.isnan(boxes), np.isnan(ref_boxes))
         assert np.nanmax(np.abs(boxes - ref_boxes)) <= 1e-9     # px
         assert np.abs(covs - ref_covs).max() <= 1e-9 * max(1.0, np.abs(ref_covs).max())
-        gate, ref_gate = est.state.gate, ref.state.gate    # the innovation average to rounding
-        assert gate._replace(nis=0.0) == ref_gate._replace(nis=0.0)
-        assert gate.nis == pytest.approx(ref_gate.nis, rel=1e-12)
+        assert_same_gate(est, ref)
+
+
+def assert_same_gate(est: HomographyEKF, ref: HomographyEKF) -> None:
+    """The compiled gate memory reads as the reference's: exactly, but for the innovation
+    average (rounding)."""
+    gate, ref_gate = est.state.gate, ref.state.gate
+    assert (gate.ewma, gate.n_used) == (ref_gate.ewma, ref_gate.n_used)
+    for field in ("accepted", "ranked"):    # NaN where gating is off (a NaN confidence is used)
+        np.testing.assert_array_equal(getattr(gate, field), getattr(ref_gate, field), field)
+    assert gate.nis == pytest.approx(ref_gate.nis, rel=1e-12)
+
+
+@pytest.mark.parametrize("preset", ["mata", "paper"])
+def test_the_relative_gate_history_rolls_over_alike(preset):
+    """Past CONFIDENCE_HISTORY accepted boxes the oldest leaves the compiled history as it
+    leaves the reference's (a box every tick, some late: replays re-run the history)."""
+    skip_while_the_kernel_lags()
+    ticks = scenario(3, n=160, delay=True, box_every=1)
+    ref = HomographyEKF(P(preset=preset, gate="relative"), backend="numpy")
+    ref_boxes, _ = run(ref, ticks)
+    assert ref.state.gate.n_used > len(ref.state.gate.accepted) == CONFIDENCE_HISTORY
+    est = HomographyEKF(P(preset=preset, gate="relative"), backend="numba")
+    boxes, _ = run(est, ticks)
+    assert np.nanmax(np.abs(boxes - ref_boxes)) <= 1e-9
+    assert_same_gate(est, ref)
 
 
 def test_the_scenario_exercises_what_it_claims():

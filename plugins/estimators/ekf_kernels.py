@@ -13,10 +13,12 @@ a few microseconds. What it exploits (paper eq. ekf_velocity_1 and the partial u
 - only upper triangles are computed where the result is symmetrised anyway.
 
 Equal to the numpy path to rounding (tests/test_ekf_kernels.py: 1e-9 px over seeded ticks of
-both presets). Policy stays in Python (``HomographyEKF``): the confidence gate and the composition
-of several motions; the state-dependent tests (front of camera, tau_sigma, chi2 inflation) and
-q_adapt's innovation average (of the d2 each box update computes) are here because they need the
-state mid-tick.
+both presets, the gate memory exactly). Besides the algebra, the tick's policy is here, each a
+twin of its readable Python in ``HomographyEKF``: the state-dependent tests (front of camera,
+tau_sigma, chi2 inflation), q_adapt's innovation average, and block A's confidence gate with
+the relative gate's history (``_gate``; its memory is one vector g per state, read as a
+GateState through ``PackedGate``), which in Python cost as much as the algebra. Only the
+composition of several motions in one tick stays in Python.
 
 Compiling takes 12 to 17 CPU-s here, once: the cache (``cache=True``) sits next to this file, or in
 the user's cache directory when the package is read-only, and a later process loads it in about
@@ -26,6 +28,7 @@ the user's cache directory when the package is read-only, and a later process lo
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -39,24 +42,70 @@ IMPLEMENTS = frozenset({
     "p0_box", "p0_h", "p0_v", "p0_a", "p0_j",
     "q_adapt", "feedback_shift", "feedback_carry"})  # the feedback ones act in step(), outside the tick
 
-# cfg: the filter's constant parameters, one float vector (numba dispatch is cheap on arrays)
+# cfg: the filter's constant parameters, one float vector (numba's dispatch costs per argument):
+# the scalars below, then the 9 floors of the homography R (C_FLOOR) and the Q rates (C_Q, one
+# per state entry)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
- C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA) = range(15)
-N_CFG = 15
+ C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA, C_RELATIVE, C_TAU_EWMA,
+ C_TAU_DIFF) = range(18)
+C_FLOOR = 18
+C_Q = C_FLOOR + 9
 # the motion input of a tick
 MOTION_NONE, MOTION_H, MOTION_H_COV = 0, 1, 2
+# a box input (one row of ``dets``): its x, y, w, h and the tracker's confidence
+D_X, D_Y, D_W, D_H, D_CONF = range(5)
+N_DET = 5
+# the gate memory (HomographyEKF.GateState packed in one float vector g): the EWMA (NaN before
+# the first confidence), boxes used, q_adapt's innovation average, the number m of accepted
+# confidences kept, then the last m of them (oldest first, from G_ACCEPTED) and the same in
+# increasing order (from G_ACCEPTED + history); history = (len(g) - G_ACCEPTED) // 2
+G_EWMA, G_N_USED, G_NIS, G_N_ACC, G_ACCEPTED = range(5)
 
 
 def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
            r_box: float, r_box_rel: float, r_conf: bool, q_box_rel: float, follow: float, decay: float,
-           p0_v: float, q_adapt: bool, alpha: float) -> np.ndarray:
+           p0_v: float, q_adapt: bool, alpha: float, relative: bool, tau_ewma: float, tau_diff: float,
+           floor: np.ndarray, q: np.ndarray) -> np.ndarray:
     """The ``cfg`` vector of :func:`tick` (HomographyEKF's resolved parameters)."""
-    cfg = np.empty(N_CFG)
-    cfg[[C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL, C_R_CONF,
-         C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA]] = [
-        n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
-        follow, decay, p0_v, q_adapt, alpha]
-    return cfg
+    scalars = [n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
+               follow, decay, p0_v, q_adapt, alpha, relative, tau_ewma, tau_diff]
+    assert len(scalars) == C_FLOOR and len(floor) == 9
+    return np.concatenate([np.asarray(scalars, float), floor, q])
+
+
+def new_gate(history: int) -> np.ndarray:
+    """The gate memory g of a filter's first state (GateState()): keeps ``history`` confidences."""
+    g = np.zeros(G_ACCEPTED + 2 * history)
+    g[G_EWMA], g[G_NIS] = np.nan, 1.0
+    return g
+
+
+class PackedGate(NamedTuple):
+    """The compiled path's gate memory, read as a GateState (same fields, same values)."""
+
+    g: np.ndarray
+
+    @property
+    def ewma(self) -> float | None:
+        v = float(self.g[G_EWMA])
+        return None if v != v else v
+
+    @property
+    def n_used(self) -> int:
+        return int(self.g[G_N_USED])
+
+    @property
+    def nis(self) -> float:
+        return float(self.g[G_NIS])
+
+    @property
+    def accepted(self) -> tuple[float, ...]:
+        return tuple(self.g[G_ACCEPTED:G_ACCEPTED + int(self.g[G_N_ACC])].tolist())
+
+    @property
+    def ranked(self) -> tuple[float, ...]:
+        start = G_ACCEPTED + (len(self.g) - G_ACCEPTED) // 2
+        return tuple(self.g[start:start + int(self.g[G_N_ACC])].tolist())
 
 
 def _njit(fn):
@@ -130,15 +179,41 @@ def _box_side(x):
     return np.sqrt(max(w, 0.0)) * np.sqrt(max(h, 0.0))
 
 
+# --- scratch memory ---------------------------------------------------------------------------
+# A tick needs about 40 small temporaries. numba would allocate and free each on the heap (about
+# 1.3 us a tick, a quarter of the arithmetic), so :func:`tick` allocates one scratch vector ``ws``
+# and each stage carves its temporaries from it: ``A, ws = _mat(ws, m, n)`` takes an m x n matrix
+# off the front of ws and leaves the rest for the stages it calls.
+
+@_njit
+def _vec(ws, k):
+    if k > ws.shape[0]:
+        raise ValueError("ekf_kernels: scratch too small")
+    return ws[:k], ws[k:]
+
+
+@_njit
+def _mat(ws, r, c):
+    v, ws = _vec(ws, r * c)
+    return v.reshape((r, c)), ws
+
+
+@_njit
+def _zeros(ws, r, c):
+    A, ws = _mat(ws, r, c)
+    A[:, :] = 0.0
+    return A, ws
+
+
 # --- small dense algebra ------------------------------------------------------------------------
 
 @_njit
-def _solve_into(S, B, out):
+def _solve_into(S, B, out, ws):
     """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
     a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
     over whole rows of B (independent sums, which the compiler vectorises)."""
     m, k = S.shape[0], B.shape[1]
-    A = np.empty((m, m))
+    A, ws = _mat(ws, m, m)
     for i in range(m):
         for j in range(m):
             A[i, j] = S[i, j]
@@ -176,7 +251,7 @@ def _solve_into(S, B, out):
 
 
 @_njit
-def _joseph_block(x, P, z, s, R):
+def _joseph_block(x, P, z, s, R, ws):
     """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z)).
 
     With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
@@ -184,13 +259,13 @@ def _joseph_block(x, P, z, s, R):
     loops run over rows (independent sums, which the compiler vectorises)."""
     n, m = x.shape[0], z.shape[0]
     B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
-    S = np.empty((m, m))
+    S, ws = _mat(ws, m, m)
     for a in range(m):
         for b in range(m):
             S[a, b] = B[a, s + b] + R[a, b]
-    Kt = np.empty((m, n))
-    _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
-    Wt = np.empty((m, n))               # (K S / 2 - B^T)^T = S^T K^T / 2 - B
+    Kt, ws = _mat(ws, m, n)
+    _solve_into(S, B, Kt, ws)           # K^T = S^-1 B (S symmetric)
+    Wt, ws = _mat(ws, m, n)             # (K S / 2 - B^T)^T = S^T K^T / 2 - B
     for a in range(m):
         for j in range(n):
             Wt[a, j] = -B[a, j]
@@ -198,12 +273,13 @@ def _joseph_block(x, P, z, s, R):
             f = 0.5 * S[b, a]
             for j in range(n):
                 Wt[a, j] += f * Kt[b, j]
-    dx = np.zeros(n)
+    dx, ws = _vec(ws, n)
+    dx[:] = 0.0
     for a in range(m):
         r = z[a] - x[s + a]
         for j in range(n):
             dx[j] += Kt[a, j] * r
-    T = np.zeros((n, n))
+    T, ws = _zeros(ws, n, n)
     for i in range(n):
         for a in range(m):
             f = Wt[a, i]
@@ -216,13 +292,13 @@ def _joseph_block(x, P, z, s, R):
 
 
 @_njit
-def _mahalanobis2(nu, S):
+def _mahalanobis2(nu, S, ws):
     m = nu.shape[0]
-    b = np.empty((m, 1))
+    b, ws = _mat(ws, m, 1)
     for a in range(m):
         b[a, 0] = nu[a]
-    y = np.empty((m, 1))
-    _solve_into(S, b, y)
+    y, ws = _mat(ws, m, 1)
+    _solve_into(S, b, y, ws)
     acc = 0.0
     for a in range(m):
         acc += nu[a] * y[a, 0]
@@ -249,11 +325,11 @@ def _valid_motion(H, C, mode):
 
 
 @_njit
-def _update_motion(x, P, cfg, floor, H, C, mode):
+def _update_motion(x, P, cfg, floor, H, C, mode, ws):
     """HomographyEKF._update_motion after the validity tests: front-of-camera and tau_sigma
     gates, then the 9-value update with R = floored(C)."""
     h33 = H[2, 2]
-    h = np.empty(9)
+    h, ws = _vec(ws, 9)
     for k in range(9):
         h[k] = H[k // 3, k % 3] / h33
     for c in range(2):
@@ -262,9 +338,9 @@ def _update_motion(x, P, cfg, floor, H, C, mode):
     if cfg[C_GATING] != 0.0 and mode == MOTION_H_COV:      # ekf_math.transferred_sigma
         cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
         u, v, w = _uvw(h, cx, cy)
-        G = np.empty((2, 9))
+        G, ws = _mat(ws, 2, 9)
         _jh(cx, cy, u, v, w, G)
-        GC = np.zeros((2, 9))           # G C (no BLAS call for 2 x 9)
+        GC, ws = _zeros(ws, 2, 9)       # G C (no BLAS call for 2 x 9)
         for r in range(2):
             for k in range(9):
                 f = G[r, k]
@@ -278,17 +354,17 @@ def _update_motion(x, P, cfg, floor, H, C, mode):
         top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
         if not np.sqrt(max(top, 0.0)) <= cfg[C_TAU_SIGMA]:
             return
-    R = np.zeros((9, 9))                                    # ekf_math.floored
+    R, ws = _zeros(ws, 9, 9)                                # ekf_math.floored
     for i in range(9):
         if mode == MOTION_H_COV:
             for j in range(9):
                 R[i, j] = 0.5 * (C[i, j] + C[j, i])
         R[i, i] += max(floor[i] - R[i, i], 0.0)
-    _joseph_block(x, P, h, 4, R)
+    _joseph_block(x, P, h, 4, R, ws)
 
 
 @_njit
-def _velocity_prior(x, P, cfg, dt, n_used):
+def _velocity_prior(x, P, cfg, dt, n_used, ws):
     """HomographyEKF._velocity_prior: the follow prior until the first box, then the relaxation
     towards 'still in the image' (ekf_math.image_static_velocity, velocity_mixture,
     relax_velocity)."""
@@ -302,7 +378,7 @@ def _velocity_prior(x, P, cfg, dt, n_used):
     h = x[4:13]                         # a view: only the velocity entries are written below
     cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
     u, v, w = _uvw(h, cx, cy)
-    J = np.empty((2, 2))
+    J, ws = _mat(ws, 2, 2)
     _jp(h, u, v, w, J)
     r0, r1 = cx - u, cy - v
     det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
@@ -347,7 +423,13 @@ def _local_scale(h, x, y, w, ds_dh):
 
 
 @_njit
-def _predict(x, P, cfg, q, dt, nis):
+def _moving(a):
+    """The a-th state entry that the transition changes: the 4 corners, then the derivatives."""
+    return a if a < 4 else 9 + a
+
+
+@_njit
+def _predict(x, P, cfg, q, dt, nis, ws):
     """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place; ``nis``:
     the boxes' average normalised innovation squared (q_adapt)."""
     n = x.shape[0]
@@ -355,8 +437,8 @@ def _predict(x, P, cfg, q, dt, nis):
     h = x[4:13]                         # a view: x is written last
     x1, y1, x2, y2 = x[0], x[1], x[2], x[3]
     cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
-    wdisp = np.empty(nd)                # ekf_math.taylor
-    T = np.zeros((nd, nd))
+    wdisp, ws = _vec(ws, nd)            # ekf_math.taylor
+    T, ws = _zeros(ws, nd, nd)
     fact = 1.0
     for i in range(nd):
         fact *= i + 1
@@ -368,13 +450,15 @@ def _predict(x, P, cfg, q, dt, nis):
                 f *= i - j
             T[j, i] = dt ** (i - j) / f
     uc, vc, wc = _uvw(h, cx, cy)
-    Jc = np.empty((2, 2))
+    Jc, ws = _mat(ws, 2, 2)
     _jp(h, uc, vc, wc, Jc)
-    M = np.empty((nd, 2, 12))
+    M2, ws = _mat(ws, nd, 24)
+    M = M2.reshape((nd, 2, 12))
     for i in range(nd):
         _jpt(h, cx, cy, x[13 + 2 * i], x[14 + 2 * i], uc, vc, wc, Jc, M[i])
-    disp = np.zeros((2, 12))
-    ndv = np.zeros((nd, 2, 12))
+    disp, ws = _zeros(ws, 2, 12)
+    ndv2, ws = _zeros(ws, nd, 24)
+    ndv = ndv2.reshape((nd, 2, 12))
     for i in range(nd):
         for r in range(2):
             for k in range(12):
@@ -382,7 +466,7 @@ def _predict(x, P, cfg, q, dt, nis):
                 for j in range(nd):
                     ndv[j, r, k] += T[j, i] * M[i, r, k]
     # Q rates, from the state before the transition (HomographyEKF._process_noise)
-    qd = np.empty(n)
+    qd, ws = _vec(ws, n)
     for i in range(n):
         qd[i] = q[i] * dt
     adapt = cfg[C_Q_ADAPT] != 0.0
@@ -391,11 +475,11 @@ def _predict(x, P, cfg, q, dt, nis):
         for i in range(4):
             qd[i] = ((q[i] + extra) * max(nis, 1.0) if adapt else q[i] + extra) * dt
 
-    F = np.zeros((n, n))
-    fx = np.empty(n)
-    Jh = np.empty((2, 9))
+    F, ws = _zeros(ws, n, n)
+    fx, ws = _vec(ws, n)
+    Jh, ws = _mat(ws, 2, 9)
     if cfg[C_CENTRE] == 0.0:            # ekf_math._corners_through_h
-        Jp = np.empty((2, 2))
+        Jp, ws = _mat(ws, 2, 2)
         for c in range(2):
             px, py = x[2 * c], x[2 * c + 1]
             u, v, w = _uvw(h, px, py)
@@ -410,7 +494,7 @@ def _predict(x, P, cfg, q, dt, nis):
                 for k in range(9):
                     F[2 * c + r, 4 + k] = Jh[r, k] + disp[r, 3 + k]
     else:                               # ekf_math._centre_through_h
-        ds_dh = np.empty(9)
+        ds_dh, ws = _vec(ws, 9)
         s, ds0, ds1 = _local_scale(h, cx, cy, wc, ds_dh)
         e0, e1 = 0.5 * (x2 - x1), 0.5 * (y2 - y1)
         c0, c1 = uc + disp[0, 0], vc + disp[1, 0]
@@ -455,31 +539,28 @@ def _predict(x, P, cfg, q, dt, nis):
     # rows of the corners and derivatives ("moving") change: with Y = F P on those rows,
     # entry (moving i, homography h) is Y_ih (= (F P F^T)_hi term by term, P symmetric).
     nm = n - 9
-    moving = np.empty(nm, np.int64)
-    for a in range(nm):
-        moving[a] = a if a < 4 else 9 + a
-    Y = np.zeros((nm, n))
+    Y, ws = _zeros(ws, nm, n)
     for a in range(nm):
         for k in range(n):
-            f = F[moving[a], k]
+            f = F[_moving(a), k]
             for j in range(n):
                 Y[a, j] += f * P[k, j]
-    Ft = np.empty((n, nm))
+    Ft, ws = _mat(ws, n, nm)
     for b in range(nm):
         for k in range(n):
-            Ft[k, b] = F[moving[b], k]
-    Z = np.zeros((nm, nm))
+            Ft[k, b] = F[_moving(b), k]
+    Z, ws = _zeros(ws, nm, nm)
     for a in range(nm):
         for k in range(n):
             f = Y[a, k]
             for b in range(nm):
                 Z[a, b] += f * Ft[k, b]
     for a in range(nm):
-        i = moving[a]
+        i = _moving(a)
         for h in range(4, 13):
             P[i, h] = P[h, i] = Y[a, h]
         for b in range(a, nm):
-            j = moving[b]
+            j = _moving(b)
             P[i, j] = P[j, i] = 0.5 * (Z[a, b] + Z[b, a])
     for i in range(n):
         P[i, i] += qd[i]
@@ -488,32 +569,32 @@ def _predict(x, P, cfg, q, dt, nis):
 
 
 @_njit
-def _update_box(x, P, cfg, z, conf):
+def _update_box(x, P, cfg, z, conf, ws):
     """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
     update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation
     (NaN when neither chi2_gate nor q_adapt needs it)."""
     r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
     if cfg[C_R_CONF] != 0.0:
         r = r / max(conf, 0.1) ** 2
-    R = np.zeros((4, 4))
+    R, ws = _zeros(ws, 4, 4)
     for a in range(4):
         R[a, a] = r
     inflate = cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0
     d2 = np.nan
     if inflate or cfg[C_Q_ADAPT] != 0.0:
-        nu = np.empty(4)
-        S = np.empty((4, 4))
+        nu, ws1 = _vec(ws, 4)
+        S, ws1 = _mat(ws1, 4, 4)
         for a in range(4):
             nu[a] = z[a] - x[a]
             for b in range(4):
                 S[a, b] = P[a, b] + R[a, b]
-        d2 = _mahalanobis2(nu, S)
+        d2 = _mahalanobis2(nu, S, ws1)
         if inflate and d2 > cfg[C_CHI2]:
             f = d2 / cfg[C_CHI2]
             for a in range(4):
                 for b in range(4):
                     R[a, b] *= f
-    _joseph_block(x, P, z, 0, R)
+    _joseph_block(x, P, z, 0, R, ws)
     return d2
 
 
@@ -528,35 +609,118 @@ def _innovation_average(nis, d2, cfg):
     return cfg[C_ALPHA] * term + (1.0 - cfg[C_ALPHA]) * nis
 
 
+# --- block A's confidence gate (HomographyEKF._gate_detection) -----------------------------------
+
 @_njit
-def tick(x0, P0, cfg, q, floor, dt, n_used, nis, H, C, motion, Z, confs, n_boxes, x, P):
+def _bisect(a, n, x, right):
+    """bisect.bisect_right (``right``) or bisect_left of x in a[:n]: the same comparisons, so the
+    same index whatever the values (NaN included)."""
+    lo, hi = 0, n
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if (x < a[mid]) if right else not (a[mid] < x):
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@_njit
+def _relative_confidence(ranked, n, confidence):
+    """homography_ekf.relative_confidence of the n ranked confidences ranked[:n]."""
+    if not np.isfinite(confidence) or confidence <= 0:
+        return 0.0
+    if n == 0:
+        return 1.0
+    i = n // 2
+    median = ranked[i] if n % 2 else (ranked[i - 1] + ranked[i]) / 2
+    if median <= 0:
+        return 1.0
+    r = confidence / median
+    return r if r < 1.0 else 1.0          # min(1.0, r), NaN included
+
+
+@_njit
+def _gate(cfg, g, det):
+    """HomographyEKF._gate_detection (with confidence_gate) on the gate memory g, in place:
+    returns whether the box is used and the confidence its noise uses."""
+    m = (g.shape[0] - G_ACCEPTED) // 2
+    accepted, ranked = g[G_ACCEPTED:G_ACCEPTED + m], g[G_ACCEPTED + m:]
+    n = int(g[G_N_ACC])
+    conf = raw = det[D_CONF]
+    relative = cfg[C_RELATIVE] != 0.0
+    if relative:
+        conf = _relative_confidence(ranked, n, raw)
+    accept = False
+    if np.isfinite(conf):                  # confidence_gate
+        a = cfg[C_ALPHA]
+        s = conf if np.isnan(g[G_EWMA]) else a * conf + (1.0 - a) * g[G_EWMA]
+        g[G_EWMA] = s
+        accept = s >= cfg[C_TAU_EWMA] and s - conf <= cfg[C_TAU_DIFF]
+    if relative and conf <= 0:
+        accept = False
+    w, h = det[D_W], det[D_H]
+    valid = 0 < w < np.inf and 0 < h < np.inf and np.isfinite(det[D_X]) and np.isfinite(det[D_Y])
+    if not valid or (cfg[C_GATING] != 0.0 and not accept):
+        return False, 0.0
+    g[G_N_USED] += 1
+    if relative:
+        if n == m:                         # the oldest one leaves
+            i = _bisect(ranked, n, accepted[0], False)
+            for j in range(i, n - 1):
+                ranked[j] = ranked[j + 1]
+            for j in range(n - 1):
+                accepted[j] = accepted[j + 1]
+            n -= 1
+        i = _bisect(ranked, n, raw, True)
+        for j in range(n, i, -1):
+            ranked[j] = ranked[j - 1]
+        ranked[i] = raw
+        accepted[n] = raw
+        g[G_N_ACC] = n + 1
+    return True, conf
+
+
+@_njit
+def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
     """One tick (HomographyEKF._tick_state): motion update (before or after the prediction),
-    velocity prior and prediction when dt > 0, the used boxes Z[:n_boxes] with their
-    confidences (as the box noise sees them). Writes x, P and returns q_adapt's innovation
-    average after the boxes (``nis`` unchanged without q_adapt), or NaN when the result is not
-    finite (the caller then holds the previous state)."""
+    velocity prior and prediction when dt > 0, then each box dets[:n_dets] (rows D_*, in capture
+    order) through the confidence gate and, when used, its update. Writes the new state x, P and
+    gate memory g; returns False when the result is not finite (the caller then holds the
+    previous state)."""
     n = x0.shape[0]
     for i in range(n):
         x[i] = x0[i]
         for j in range(n):
             P[i, j] = P0[i, j]
+    for i in range(g0.shape[0]):
+        g[i] = g0[i]
+    floor, q = cfg[C_FLOOR:C_Q], cfg[C_Q:]
+    ws = np.empty(8 * n * n + 512)      # scratch: the prediction with model cj takes about 3 n^2
     use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)
     before = cfg[C_H_BEFORE] != 0.0
     if use_h and before:
-        _update_motion(x, P, cfg, floor, H, C, motion)
+        _update_motion(x, P, cfg, floor, H, C, motion, ws)
     if dt > 0:
-        _velocity_prior(x, P, cfg, dt, n_used)
-        _predict(x, P, cfg, q, dt, nis)
+        _velocity_prior(x, P, cfg, dt, g[G_N_USED], ws)
+        _predict(x, P, cfg, q, dt, g[G_NIS], ws)
     if use_h and not before:
-        _update_motion(x, P, cfg, floor, H, C, motion)
-    for b in range(n_boxes):
-        d2 = _update_box(x, P, cfg, Z[b], confs[b])
+        _update_motion(x, P, cfg, floor, H, C, motion, ws)
+    z, ws = _vec(ws, 4)
+    for b in range(n_dets):
+        det = dets[b]
+        used, conf = _gate(cfg, g, det)
+        if not used:
+            continue
+        z[0], z[1] = det[D_X], det[D_Y]
+        z[2], z[3] = det[D_X] + det[D_W], det[D_Y] + det[D_H]
+        d2 = _update_box(x, P, cfg, z, conf, ws)
         if cfg[C_Q_ADAPT] != 0.0:
-            nis = _innovation_average(nis, d2, cfg)
-    for i in range(x.shape[0]):
+            g[G_NIS] = _innovation_average(g[G_NIS], d2, cfg)
+    for i in range(n):
         if not np.isfinite(x[i]):
-            return np.nan
-        for j in range(x.shape[0]):
+            return False
+        for j in range(n):
             if not np.isfinite(P[i, j]):
-                return np.nan
-    return nis
+                return False
+    return True

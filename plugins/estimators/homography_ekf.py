@@ -120,7 +120,7 @@ class FilterState(NamedTuple):
 
     x: np.ndarray
     P: np.ndarray
-    gate: GateState
+    gate: GateState  # on the compiled path an ekf_kernels.PackedGate: the same fields, packed
 
     @property
     def ewma(self) -> float | None:
@@ -293,15 +293,18 @@ class HomographyEKF:
         kernels = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
         # the compiled tick (a numba dispatcher, picklable like the filter) or None for numpy
         self._kernel = None if kernels is None else kernels.tick
+        self._gate0 = GateState()
         if kernels is not None:
             self._motion_codes = (kernels.MOTION_NONE, kernels.MOTION_H, kernels.MOTION_H_COV)
             self._cfg = kernels.config(
                 n_deriv=self.n_deriv, centre=p.box_motion == "centre", h_before=p.h_update == "before_predict",
                 gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
-                p0_v=p.p0_v, q_adapt=p.q_adapt, alpha=p.alpha_ewma)
-            self._boxes = np.empty((4, 4))      # the used boxes of a tick (grown on demand)
-            self._confs = np.empty(4)
+                p0_v=p.p0_v, q_adapt=p.q_adapt, alpha=p.alpha_ewma, relative=p.gate == "relative",
+                tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, floor=self._h_floor, q=self._q)
+            self._gate0 = kernels.PackedGate(kernels.new_gate(CONFIDENCE_HISTORY))
+            self._packed_gate = kernels.PackedGate
+            self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
@@ -315,7 +318,7 @@ class HomographyEKF:
         x = np.zeros(em.state_dim(self.n_deriv))
         x[em.CORNERS] = box.corners()
         x[em.HOM] = np.eye(3).reshape(9)
-        start = FilterState(x, self._p0.copy(), GateState())
+        start = FilterState(x, self._p0.copy(), self._gate0)
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
         self._newest_fit = None
@@ -323,23 +326,29 @@ class HomographyEKF:
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
              detections: Sequence[Stamped[TrackerOutput]] = ()) -> Estimate:
-        if not self._ticks:
+        ticks = self._ticks
+        if not ticks:
             raise RuntimeError("homography_ekf: step() called before initialize()")
-        last = self._ticks[-1]
+        last = ticks[-1]
         if t < last.t - EPS_T:
             raise ValueError(f"homography_ekf: step at t={t} is before the previous tick t={last.t}")
         if t > last.t + EPS_T:
-            self._ticks.append(_Tick(float(t), float(t) - last.t, last.after))
-        first = len(self._ticks) - 1
+            last = _Tick(float(t), float(t) - last.t, last.after)
+            ticks.append(last)
+        first = newest = len(ticks) - 1
+        on_time = last.t - EPS_T    # captured at the newest tick: the common case, decided here
         for item in motions:
-            i = self._tick_index(item.t_capture, True)
-            self._ticks[i].motions.append(item)
-            first = min(first, i)
+            i = newest if item.t_capture >= on_time else self._tick_index(item.t_capture, True)
+            ticks[i].motions.append(item)
+            first = i if i < first else first
         for item in detections:
-            i = self._tick_index(item.t_capture, False)
-            self._ticks[i].detections.append(item)
-            first = min(first, i)
-        self._replay(first)
+            i = newest if item.t_capture >= on_time else self._tick_index(item.t_capture, False)
+            ticks[i].detections.append(item)
+            first = i if i < first else first
+        if first == newest:
+            last.after = self._run_tick(last)
+        else:
+            self._replay(first)
         self._trim()
         est = self._estimate(self._ticks[-1].after)
         if self.params.feedback_carry or self.params.feedback_shift:
@@ -394,47 +403,42 @@ class HomographyEKF:
             return self._tick_state(tick)
 
     def _tick_compiled(self, tick: _Tick) -> FilterState:
-        """:meth:`_tick_state` with the algebra in one compiled call (``ekf_kernels.tick``): the
-        policy that needs no state (motion validity and composition, the confidence gate) is
-        decided here, exactly as the numpy path decides it; q_adapt's average is the kernel's."""
+        """:meth:`_tick_state` in one compiled call (``ekf_kernels.tick``), the confidence gate
+        and its memory (a ``PackedGate``) included; the composition of several motions in one
+        tick is decided here, exactly as the numpy path decides it."""
         b = tick.before
-        no_motion, with_h, with_cov = self._motion_codes
-        H, C, motion = self._no_h, self._no_cov, no_motion
-        ms = tick.motions
-        if len(ms) == 1 and self.params.camera:     # validity tested in the kernel
-            m = ms[0].value
-            H = np.asarray(m.H, float)
-            if m.valid and H.shape == (3, 3):
-                motion = with_h
-                if m.cov is not None:
-                    C = np.asarray(m.cov, float)
-                    motion = with_cov if C.shape == (9, 9) else no_motion
-        elif ms:
-            meas = self._motion_measurement(ms)
-            if meas is not None:
-                H, C = meas
-                motion = with_h if C is None else with_cov
-                C = self._no_cov if C is None else C
-        gate, k = b.gate, 0
+        H, C, motion = self._motion_input(tick.motions)
         dets = tick.detections
-        for d in (dets if len(dets) < 2 else sorted(dets, key=_t_capture)):
-            gate, conf = self._gate_detection(gate, d.value)
-            if conf is not None:
-                if k == len(self._confs):
-                    self._boxes = np.resize(self._boxes, (2 * k, 4))
-                    self._confs = np.resize(self._confs, 2 * k)
-                self._boxes[k] = d.value.box.corners()
-                self._confs[k] = conf
-                k += 1
-        n = len(b.x)
-        x, P = np.empty(n), np.empty((n, n))
-        nis = self._kernel(b.x, b.P, self._cfg, self._q, self._h_floor, tick.dt, b.gate.n_used, gate.nis,
-                           H, C, motion, self._boxes, self._confs, k, x, P)
-        if nis != nis:                          # NaN: a degenerate input, held
-            return b
-        if nis != gate.nis:                     # q_adapt's average moved
-            gate = GateState(gate.ewma, gate.accepted, gate.n_used, gate.ranked, nis)
-        return FilterState(x, P, gate)
+        if len(dets) > 1:
+            dets = sorted(dets, key=_t_capture)
+            if len(dets) > len(self._dets):
+                self._dets = np.empty((2 * len(dets), self._dets.shape[1]))
+        for i, d in enumerate(dets):
+            box = d.value.box
+            self._dets[i] = box.x, box.y, box.w, box.h, d.value.confidence
+        x, P, g = np.empty(len(b.x)), np.empty(b.P.shape), np.empty(len(b.gate.g))
+        if self._kernel(self._cfg, b.x, b.P, b.gate.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
+            return FilterState(x, P, self._packed_gate(g))
+        return b                                # not finite: a degenerate input, held
+
+    def _motion_input(self, motions: list[Stamped[Motion]]) -> tuple[np.ndarray, np.ndarray, int]:
+        """The compiled tick's motion input (H, C, ekf_kernels.MOTION_*): one motion as it
+        comes (the kernel tests its validity), several composed by :meth:`_motion_measurement`."""
+        no_motion, with_h, with_cov = self._motion_codes
+        if len(motions) == 1 and self.params.camera:
+            m = motions[0].value
+            H = np.asarray(m.H, float)
+            if not m.valid or H.shape != (3, 3):
+                return self._no_h, self._no_cov, no_motion
+            if m.cov is None:
+                return H, self._no_cov, with_h
+            C = np.asarray(m.cov, float)
+            return (H, C, with_cov) if C.shape == (9, 9) else (self._no_h, self._no_cov, no_motion)
+        meas = self._motion_measurement(motions)
+        if meas is None:
+            return self._no_h, self._no_cov, no_motion
+        H, C = meas
+        return (H, self._no_cov, with_h) if C is None else (H, C, with_cov)
 
     def _tick_state(self, tick: _Tick) -> FilterState:
         x, P, gate = tick.before.x, tick.before.P, tick.before.gate
@@ -557,7 +561,8 @@ class HomographyEKF:
 
     def _gate_detection(self, gate: GateState, out: TrackerOutput) -> tuple[GateState, float | None]:
         """Block A's gate (needs no state): the gate memory after this box and the confidence
-        its noise uses (relative with gate ``relative``), or None when the box is not used."""
+        its noise uses (relative with gate ``relative``), or None when the box is not used. The
+        compiled path runs its twin, ``ekf_kernels._gate``, on a packed memory."""
         p = self.params
         conf = raw = float(out.confidence)
         relative = p.gate == "relative"
