@@ -87,7 +87,7 @@ def run(est: HomographyEKF, ticks) -> tuple[np.ndarray, np.ndarray]:
 CASES = [dict(), dict(delay="compensate"), dict(delay="ignore"), dict(h_update="after_predict"),
          dict(model="ca"), dict(model="cj"), dict(gating=False), dict(camera=False),
          dict(box_motion="corners"), dict(box_motion="centre"),
-         dict(feedback_carry=True, feedback_shift=0.25), dict(q_adapt=True), dict(q_adapt=False),
+         dict(feedback_carry=True, feedback_shift=0.25), dict(feedback_hold=True), dict(q_adapt=True), dict(q_adapt=False),
          dict(q_adapt=True, chi2_gate=0.0)]
 
 

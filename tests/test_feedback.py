@@ -169,3 +169,51 @@ def test_carry_only_a_box_the_filter_used():
         out = est.step(0.1, (), [Stamped(TrackerOutput(far, confidence), 0.1, 0.1)])
         assert out.search == (pytest.approx(search) if search else None)
         assert out.prior == pytest.approx(search or out.box.center)
+
+
+@pytest.mark.parametrize("hold, fed", [(False, [1, 2, 3, 4, 5, 6, 7]), (True, [1, 4, 6])])
+def test_hold_keeps_the_trackers_own_search_while_its_fresh_box_contains_the_estimate(hold, fed):
+    # The pan timeline above (15 px = 0.75 box before frames 4 and 6, 5 px before 7), LTP: from
+    # frame 2 on the tracker's newest box is from the previous frame and confident, and the
+    # estimate of frame k is that box moved by the pan; only the 15 px pans put it outside the
+    # box, so with feedback_hold frames 2, 3, 5 and 7 search at their own box, as alone (frame
+    # 1 has only the initial box, which the filter did not use: the estimate is handed over).
+    pan = {4: 15.0, 6: 15.0, 7: 5.0}
+    tracker = WorldStillTracker(pan)
+    est = HomographyEKF(HomographyEKF.Params(preset="paper", feedback_hold=hold))
+    run_sequence(toy_sequence(8), tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
+    assert [k for k, p in tracker.calls if p is not None] == fed
+
+
+@pytest.mark.parametrize("preset", ["paper", "mata"])
+def test_hold_hands_over_the_estimate_when_the_box_is_older_than_one_tick(preset):
+    # EOP at 10 Hz with a one-period latency on a still camera: the tracker's box of frame k
+    # arrives at k + 3, when the tracker starts again; it is three ticks old, so the estimate
+    # (which contains nothing new here) is handed over at every call, where the deadband of
+    # feedback_shift 0.5, which looks at the box only, withholds every one.
+    n = 13
+    for params, want in ((dict(feedback_hold=True), [True] * 3), (dict(feedback_shift=0.5), [False] * 3)):
+        tracker = WorldStillTracker({})
+        est = HomographyEKF(HomographyEKF.Params(preset=preset, **params))
+        run_sequence(toy_sequence(n), tracker, PanEgoMotion({}), est, EOP(EOP.Params(tracker_hz=10.0)),
+                     np.random.default_rng(0))
+        assert [k for k, _ in tracker.calls] == [3, 6, 9, 12]
+        # the call at frame 3 has no box yet but the initial one (frame 0, three ticks old)
+        assert [p is not None for _, p in tracker.calls[1:]] == want
+
+
+def test_hold_hands_over_the_estimate_after_a_doubtful_box():
+    # Boxes at confidence 0.9 set the tracker's median; a box at 0.36 (relative 0.4) passes the
+    # gate (EWMA 0.3 * 0.4 + 0.7 * 1 = 0.82 >= 0.25, drop 0.82 - 0.4 = 0.42 <= 0.5) and is used,
+    # but at R = 1 / 0.4^2 = 6.25 times nominal: the filter doubts it, and the estimate is handed
+    # over although it lies inside that box. A box at the median confidence is trusted: withheld.
+    for confidence, fed in ((0.36, True), (0.9, False)):
+        est = HomographyEKF(HomographyEKF.Params(feedback_hold=True))
+        est.initialize(BOX, 0.0)
+        for k in range(1, 6):
+            est.step(k / FPS, (), [Stamped(TrackerOutput(BOX, 0.9), k / FPS, k / FPS)])
+        used = est.state.gate.n_used
+        out = est.step(6 / FPS, (), [Stamped(TrackerOutput(BOX, confidence), 6 / FPS, 6 / FPS)])
+        assert est.state.gate.n_used == used + 1  # used in both cases
+        assert abs(out.box.cx - BOX.cx) < 0.5 * BOX.w and abs(out.box.cy - BOX.cy) < 0.5 * BOX.h
+        assert (out.prior is not None) == fed

@@ -38,6 +38,9 @@ BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for 
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
+#: feedback_hold trusts a box used at half the tracker's typical confidence or more: its R is at
+#: most 4 times nominal (r_confidence), the level of the relative gate's drop test (tau_diff 0.5)
+HOLD_CONFIDENCE = 0.5
 
 # Defaults for the homography entries (row-major h11..h33; units 1, 1, px, 1, 1, px, 1/px, 1/px, 1).
 _Q_H = [3e-3, 3e-3, 3e2, 3e-3, 3e-3, 3e2, 3e-9, 3e-9, 3e-9]
@@ -210,6 +213,11 @@ class HomographyEKF:
             False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
             "that box moved by the filter's predicted motion since its capture instead of the "
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
+        feedback_hold: bool = param(
+            False, "with feedback, hand the tracker no search centre while its newest box is from "
+            "the previous tick, was used by the filter at a relative confidence of at least "
+            "HOLD_CONFIDENCE and contains the estimate's centre (the tracker searches there "
+            "anyway); otherwise the estimate (paper L424; docs/mata.md)")
         q_adapt: bool | None = _preset_param(
             "q_adapt", "the corners' process noise times the average (EWMA, alpha_ewma) of the "
             "used boxes' normalised innovation squared d2 / 4, each capped at chi2_gate / 4, when "
@@ -309,6 +317,8 @@ class HomographyEKF:
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
         self._newest_fit: tuple[float, float] | None = None  # the posterior centre where the filter used it
+        self._newest_trusted = False  # used at a relative confidence >= HOLD_CONFIDENCE
+        self._previous_t = -math.inf  # the time of the tick before the newest
 
     # --- interface ---------------------------------------------------------------------------
 
@@ -321,7 +331,7 @@ class HomographyEKF:
         start = FilterState(x, self._p0.copy(), self._gate0)
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
-        self._newest_fit = None
+        self._newest_fit, self._newest_trusted, self._previous_t = None, False, -math.inf
         return self._estimate(start)
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
@@ -333,6 +343,7 @@ class HomographyEKF:
         if t < last.t - EPS_T:
             raise ValueError(f"homography_ekf: step at t={t} is before the previous tick t={last.t}")
         if t > last.t + EPS_T:
+            self._previous_t = last.t
             last = _Tick(float(t), float(t) - last.t, last.after)
             ticks.append(last)
         first = newest = len(ticks) - 1
@@ -351,7 +362,7 @@ class HomographyEKF:
             self._replay(first)
         self._trim()
         est = self._estimate(self._ticks[-1].after)
-        if self.params.feedback_carry or self.params.feedback_shift:
+        if self.params.feedback_carry or self.params.feedback_shift or self.params.feedback_hold:
             self._note_newest_box(detections)
             est = self._with_feedback(est)
         return est
@@ -593,14 +604,17 @@ class HomographyEKF:
 
     def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
-        and, when the filter used it, the posterior centre of its tick (for ``feedback_carry``)."""
+        and, when the filter used it, the posterior centre of its tick (for ``feedback_carry``),
+        and whether the box's relative confidence reached HOLD_CONFIDENCE (for ``feedback_hold``)."""
         for det in detections:
             if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
-                self._newest, self._newest_fit = det, None
+                self._newest, self._newest_fit, self._newest_trusted = det, None, False
                 tick = next((k for k in reversed(self._ticks) if any(d is det for d in k.detections)), None)
                 if tick is not None and tick.after.gate.n_used > tick.before.gate.n_used:
                     x1, y1, x2, y2 = tick.after.x[em.CORNERS]
                     self._newest_fit = (0.5 * (x1 + x2), 0.5 * (y1 + y2))
+                    self._newest_trusted = relative_confidence(
+                        tick.before.gate.ranked, float(det.value.confidence), ranked=True) >= HOLD_CONFIDENCE
 
     def _with_feedback(self, est: Estimate) -> Estimate:
         """What is fed back to the tracker (beyond the paper, whose L424 feeds every estimate's
@@ -609,17 +623,30 @@ class HomographyEKF:
         capture (camera and own motion: what the tracker cannot see), not the estimate, which
         also carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed
         back when that centre lies within f of the newest box (its width in x, height in y),
-        where the tracker searches anyway."""
+        where the tracker searches anyway. ``feedback_hold``: the same with f = 0.5, only while
+        that box is fresh (captured at the previous tick) and was used at a relative confidence
+        of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate."""
         b = self._newest.value.box
         if self.params.feedback_carry and self._newest_fit is not None:
             fx, fy = self._newest_fit
             est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
+        if self.params.feedback_hold and self._holds(est, b):
+            return dataclasses.replace(est, feedback=False)
         f = self.params.feedback_shift
         if not f:
             return est
         cx, cy = est.prior
         shift = max(abs(cx - b.cx) / b.w, abs(cy - b.cy) / b.h)
         return est if shift > f else dataclasses.replace(est, feedback=False)
+
+    def _holds(self, est: Estimate, b: Box) -> bool:
+        """``feedback_hold``: the tracker's newest box ``b`` was captured at the previous tick or
+        later, the filter used it at a relative confidence of at least HOLD_CONFIDENCE, and it
+        contains the search centre offered."""
+        if not self._newest_trusted or est.prior is None or self._newest.t_capture < self._previous_t - EPS_T:
+            return False
+        cx, cy = est.prior
+        return abs(cx - b.cx) <= b.w / 2.0 and abs(cy - b.cy) <= b.h / 2.0
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
