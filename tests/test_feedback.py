@@ -1,8 +1,9 @@
 """What MATA hands its tracker (paper L424): an estimate's ``feedback`` flag decides whether the
 scheduler gives the tracker a search centre, ``search`` which one (default: the estimate's
 centre). ``homography_ekf`` withholds it, with ``feedback_shift``, when it would not move the
-tracker's search out of its own newest box, and with ``feedback_carry`` hands the tracker's own
-box moved by the predicted motion. Checked on hand-built timelines: camera pans of known size
+tracker's search out of its own newest box (``feedback_hold``: only while that box is fresh and
+confident), and with ``feedback_carry`` hands the tracker's own box moved by the predicted
+motion. Checked on hand-built timelines: camera pans of known size
 against the box, a world-still target whose true position is known."""
 
 from __future__ import annotations
