@@ -179,41 +179,15 @@ def _box_side(x):
     return np.sqrt(max(w, 0.0)) * np.sqrt(max(h, 0.0))
 
 
-# --- scratch memory ---------------------------------------------------------------------------
-# A tick needs about 40 small temporaries. numba would allocate and free each on the heap (about
-# 1.3 us a tick, a quarter of the arithmetic), so :func:`tick` allocates one scratch vector ``ws``
-# and each stage carves its temporaries from it: ``A, ws = _mat(ws, m, n)`` takes an m x n matrix
-# off the front of ws and leaves the rest for the stages it calls.
-
-@_njit
-def _vec(ws, k):
-    if k > ws.shape[0]:
-        raise ValueError("ekf_kernels: scratch too small")
-    return ws[:k], ws[k:]
-
-
-@_njit
-def _mat(ws, r, c):
-    v, ws = _vec(ws, r * c)
-    return v.reshape((r, c)), ws
-
-
-@_njit
-def _zeros(ws, r, c):
-    A, ws = _mat(ws, r, c)
-    A[:, :] = 0.0
-    return A, ws
-
-
 # --- small dense algebra ------------------------------------------------------------------------
 
 @_njit
-def _solve_into(S, B, out, ws):
+def _solve_into(S, B, out):
     """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
     a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
     over whole rows of B (independent sums, which the compiler vectorises)."""
     m, k = S.shape[0], B.shape[1]
-    A, ws = _mat(ws, m, m)
+    A = np.empty((m, m))
     for i in range(m):
         for j in range(m):
             A[i, j] = S[i, j]
@@ -251,7 +225,7 @@ def _solve_into(S, B, out, ws):
 
 
 @_njit
-def _joseph_block(x, P, z, s, R, ws):
+def _joseph_block(x, P, z, s, R):
     """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z)).
 
     With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
@@ -259,13 +233,13 @@ def _joseph_block(x, P, z, s, R, ws):
     loops run over rows (independent sums, which the compiler vectorises)."""
     n, m = x.shape[0], z.shape[0]
     B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
-    S, ws = _mat(ws, m, m)
+    S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
             S[a, b] = B[a, s + b] + R[a, b]
-    Kt, ws = _mat(ws, m, n)
-    _solve_into(S, B, Kt, ws)           # K^T = S^-1 B (S symmetric)
-    Wt, ws = _mat(ws, m, n)             # (K S / 2 - B^T)^T = S^T K^T / 2 - B
+    Kt = np.empty((m, n))
+    _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
+    Wt = np.empty((m, n))               # (K S / 2 - B^T)^T = S^T K^T / 2 - B
     for a in range(m):
         for j in range(n):
             Wt[a, j] = -B[a, j]
@@ -273,13 +247,12 @@ def _joseph_block(x, P, z, s, R, ws):
             f = 0.5 * S[b, a]
             for j in range(n):
                 Wt[a, j] += f * Kt[b, j]
-    dx, ws = _vec(ws, n)
-    dx[:] = 0.0
+    dx = np.zeros(n)
     for a in range(m):
         r = z[a] - x[s + a]
         for j in range(n):
             dx[j] += Kt[a, j] * r
-    T, ws = _zeros(ws, n, n)
+    T = np.zeros((n, n))
     for i in range(n):
         for a in range(m):
             f = Wt[a, i]
@@ -292,13 +265,13 @@ def _joseph_block(x, P, z, s, R, ws):
 
 
 @_njit
-def _mahalanobis2(nu, S, ws):
+def _mahalanobis2(nu, S):
     m = nu.shape[0]
-    b, ws = _mat(ws, m, 1)
+    b = np.empty((m, 1))
     for a in range(m):
         b[a, 0] = nu[a]
-    y, ws = _mat(ws, m, 1)
-    _solve_into(S, b, y, ws)
+    y = np.empty((m, 1))
+    _solve_into(S, b, y)
     acc = 0.0
     for a in range(m):
         acc += nu[a] * y[a, 0]
@@ -325,11 +298,11 @@ def _valid_motion(H, C, mode):
 
 
 @_njit
-def _update_motion(x, P, cfg, floor, H, C, mode, ws):
+def _update_motion(x, P, cfg, floor, H, C, mode):
     """HomographyEKF._update_motion after the validity tests: front-of-camera and tau_sigma
     gates, then the 9-value update with R = floored(C)."""
     h33 = H[2, 2]
-    h, ws = _vec(ws, 9)
+    h = np.empty(9)
     for k in range(9):
         h[k] = H[k // 3, k % 3] / h33
     for c in range(2):
@@ -338,9 +311,9 @@ def _update_motion(x, P, cfg, floor, H, C, mode, ws):
     if cfg[C_GATING] != 0.0 and mode == MOTION_H_COV:      # ekf_math.transferred_sigma
         cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
         u, v, w = _uvw(h, cx, cy)
-        G, ws = _mat(ws, 2, 9)
+        G = np.empty((2, 9))
         _jh(cx, cy, u, v, w, G)
-        GC, ws = _zeros(ws, 2, 9)       # G C (no BLAS call for 2 x 9)
+        GC = np.zeros((2, 9))           # G C (no BLAS call for 2 x 9)
         for r in range(2):
             for k in range(9):
                 f = G[r, k]
@@ -354,17 +327,17 @@ def _update_motion(x, P, cfg, floor, H, C, mode, ws):
         top = 0.5 * (a + c) + np.sqrt(0.25 * (a - c) ** 2 + b * b)
         if not np.sqrt(max(top, 0.0)) <= cfg[C_TAU_SIGMA]:
             return
-    R, ws = _zeros(ws, 9, 9)                                # ekf_math.floored
+    R = np.zeros((9, 9))                                    # ekf_math.floored
     for i in range(9):
         if mode == MOTION_H_COV:
             for j in range(9):
                 R[i, j] = 0.5 * (C[i, j] + C[j, i])
         R[i, i] += max(floor[i] - R[i, i], 0.0)
-    _joseph_block(x, P, h, 4, R, ws)
+    _joseph_block(x, P, h, 4, R)
 
 
 @_njit
-def _velocity_prior(x, P, cfg, dt, n_used, ws):
+def _velocity_prior(x, P, cfg, dt, n_used):
     """HomographyEKF._velocity_prior: the follow prior until the first box, then the relaxation
     towards 'still in the image' (ekf_math.image_static_velocity, velocity_mixture,
     relax_velocity)."""
@@ -378,7 +351,7 @@ def _velocity_prior(x, P, cfg, dt, n_used, ws):
     h = x[4:13]                         # a view: only the velocity entries are written below
     cx, cy = 0.5 * (x[0] + x[2]), 0.5 * (x[1] + x[3])
     u, v, w = _uvw(h, cx, cy)
-    J, ws = _mat(ws, 2, 2)
+    J = np.empty((2, 2))
     _jp(h, u, v, w, J)
     r0, r1 = cx - u, cy - v
     det = J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]
@@ -423,13 +396,7 @@ def _local_scale(h, x, y, w, ds_dh):
 
 
 @_njit
-def _moving(a):
-    """The a-th state entry that the transition changes: the 4 corners, then the derivatives."""
-    return a if a < 4 else 9 + a
-
-
-@_njit
-def _predict(x, P, cfg, q, dt, nis, ws):
+def _predict(x, P, cfg, q, dt, nis):
     """ekf_math.transition (f and F) and predict_cov with Q = diag(q(x)) dt, in place; ``nis``:
     the boxes' average normalised innovation squared (q_adapt)."""
     n = x.shape[0]
@@ -437,8 +404,8 @@ def _predict(x, P, cfg, q, dt, nis, ws):
     h = x[4:13]                         # a view: x is written last
     x1, y1, x2, y2 = x[0], x[1], x[2], x[3]
     cx, cy = 0.5 * (x1 + x2), 0.5 * (y1 + y2)
-    wdisp, ws = _vec(ws, nd)            # ekf_math.taylor
-    T, ws = _zeros(ws, nd, nd)
+    wdisp = np.empty(nd)                # ekf_math.taylor
+    T = np.zeros((nd, nd))
     fact = 1.0
     for i in range(nd):
         fact *= i + 1
@@ -450,15 +417,13 @@ def _predict(x, P, cfg, q, dt, nis, ws):
                 f *= i - j
             T[j, i] = dt ** (i - j) / f
     uc, vc, wc = _uvw(h, cx, cy)
-    Jc, ws = _mat(ws, 2, 2)
+    Jc = np.empty((2, 2))
     _jp(h, uc, vc, wc, Jc)
-    M2, ws = _mat(ws, nd, 24)
-    M = M2.reshape((nd, 2, 12))
+    M = np.empty((nd, 2, 12))
     for i in range(nd):
         _jpt(h, cx, cy, x[13 + 2 * i], x[14 + 2 * i], uc, vc, wc, Jc, M[i])
-    disp, ws = _zeros(ws, 2, 12)
-    ndv2, ws = _zeros(ws, nd, 24)
-    ndv = ndv2.reshape((nd, 2, 12))
+    disp = np.zeros((2, 12))
+    ndv = np.zeros((nd, 2, 12))
     for i in range(nd):
         for r in range(2):
             for k in range(12):
@@ -466,7 +431,7 @@ def _predict(x, P, cfg, q, dt, nis, ws):
                 for j in range(nd):
                     ndv[j, r, k] += T[j, i] * M[i, r, k]
     # Q rates, from the state before the transition (HomographyEKF._process_noise)
-    qd, ws = _vec(ws, n)
+    qd = np.empty(n)
     for i in range(n):
         qd[i] = q[i] * dt
     adapt = cfg[C_Q_ADAPT] != 0.0
@@ -475,11 +440,11 @@ def _predict(x, P, cfg, q, dt, nis, ws):
         for i in range(4):
             qd[i] = ((q[i] + extra) * max(nis, 1.0) if adapt else q[i] + extra) * dt
 
-    F, ws = _zeros(ws, n, n)
-    fx, ws = _vec(ws, n)
-    Jh, ws = _mat(ws, 2, 9)
+    F = np.zeros((n, n))
+    fx = np.empty(n)
+    Jh = np.empty((2, 9))
     if cfg[C_CENTRE] == 0.0:            # ekf_math._corners_through_h
-        Jp, ws = _mat(ws, 2, 2)
+        Jp = np.empty((2, 2))
         for c in range(2):
             px, py = x[2 * c], x[2 * c + 1]
             u, v, w = _uvw(h, px, py)
@@ -494,7 +459,7 @@ def _predict(x, P, cfg, q, dt, nis, ws):
                 for k in range(9):
                     F[2 * c + r, 4 + k] = Jh[r, k] + disp[r, 3 + k]
     else:                               # ekf_math._centre_through_h
-        ds_dh, ws = _vec(ws, 9)
+        ds_dh = np.empty(9)
         s, ds0, ds1 = _local_scale(h, cx, cy, wc, ds_dh)
         e0, e1 = 0.5 * (x2 - x1), 0.5 * (y2 - y1)
         c0, c1 = uc + disp[0, 0], vc + disp[1, 0]
@@ -539,28 +504,31 @@ def _predict(x, P, cfg, q, dt, nis, ws):
     # rows of the corners and derivatives ("moving") change: with Y = F P on those rows,
     # entry (moving i, homography h) is Y_ih (= (F P F^T)_hi term by term, P symmetric).
     nm = n - 9
-    Y, ws = _zeros(ws, nm, n)
+    moving = np.empty(nm, np.int64)
+    for a in range(nm):
+        moving[a] = a if a < 4 else 9 + a
+    Y = np.zeros((nm, n))
     for a in range(nm):
         for k in range(n):
-            f = F[_moving(a), k]
+            f = F[moving[a], k]
             for j in range(n):
                 Y[a, j] += f * P[k, j]
-    Ft, ws = _mat(ws, n, nm)
+    Ft = np.empty((n, nm))
     for b in range(nm):
         for k in range(n):
-            Ft[k, b] = F[_moving(b), k]
-    Z, ws = _zeros(ws, nm, nm)
+            Ft[k, b] = F[moving[b], k]
+    Z = np.zeros((nm, nm))
     for a in range(nm):
         for k in range(n):
             f = Y[a, k]
             for b in range(nm):
                 Z[a, b] += f * Ft[k, b]
     for a in range(nm):
-        i = _moving(a)
+        i = moving[a]
         for h in range(4, 13):
             P[i, h] = P[h, i] = Y[a, h]
         for b in range(a, nm):
-            j = _moving(b)
+            j = moving[b]
             P[i, j] = P[j, i] = 0.5 * (Z[a, b] + Z[b, a])
     for i in range(n):
         P[i, i] += qd[i]
@@ -569,32 +537,32 @@ def _predict(x, P, cfg, q, dt, nis, ws):
 
 
 @_njit
-def _update_box(x, P, cfg, z, conf, ws):
+def _update_box(x, P, cfg, z, conf):
     """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
     update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation
     (NaN when neither chi2_gate nor q_adapt needs it)."""
     r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
     if cfg[C_R_CONF] != 0.0:
         r = r / max(conf, 0.1) ** 2
-    R, ws = _zeros(ws, 4, 4)
+    R = np.zeros((4, 4))
     for a in range(4):
         R[a, a] = r
     inflate = cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0
     d2 = np.nan
     if inflate or cfg[C_Q_ADAPT] != 0.0:
-        nu, ws1 = _vec(ws, 4)
-        S, ws1 = _mat(ws1, 4, 4)
+        nu = np.empty(4)
+        S = np.empty((4, 4))
         for a in range(4):
             nu[a] = z[a] - x[a]
             for b in range(4):
                 S[a, b] = P[a, b] + R[a, b]
-        d2 = _mahalanobis2(nu, S, ws1)
+        d2 = _mahalanobis2(nu, S)
         if inflate and d2 > cfg[C_CHI2]:
             f = d2 / cfg[C_CHI2]
             for a in range(4):
                 for b in range(4):
                     R[a, b] *= f
-    _joseph_block(x, P, z, 0, R, ws)
+    _joseph_block(x, P, z, 0, R)
     return d2
 
 
@@ -696,17 +664,16 @@ def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
     for i in range(g0.shape[0]):
         g[i] = g0[i]
     floor, q = cfg[C_FLOOR:C_Q], cfg[C_Q:]
-    ws = np.empty(8 * n * n + 512)      # scratch: the prediction with model cj takes about 3 n^2
     use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)
     before = cfg[C_H_BEFORE] != 0.0
     if use_h and before:
-        _update_motion(x, P, cfg, floor, H, C, motion, ws)
+        _update_motion(x, P, cfg, floor, H, C, motion)
     if dt > 0:
-        _velocity_prior(x, P, cfg, dt, g[G_N_USED], ws)
-        _predict(x, P, cfg, q, dt, g[G_NIS], ws)
+        _velocity_prior(x, P, cfg, dt, g[G_N_USED])
+        _predict(x, P, cfg, q, dt, g[G_NIS])
     if use_h and not before:
-        _update_motion(x, P, cfg, floor, H, C, motion, ws)
-    z, ws = _vec(ws, 4)
+        _update_motion(x, P, cfg, floor, H, C, motion)
+    z = np.empty(4)
     for b in range(n_dets):
         det = dets[b]
         used, conf = _gate(cfg, g, det)
@@ -714,7 +681,7 @@ def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
             continue
         z[0], z[1] = det[D_X], det[D_Y]
         z[2], z[3] = det[D_X] + det[D_W], det[D_Y] + det[D_H]
-        d2 = _update_box(x, P, cfg, z, conf, ws)
+        d2 = _update_box(x, P, cfg, z, conf)
         if cfg[C_Q_ADAPT] != 0.0:
             g[G_NIS] = _innovation_average(g[G_NIS], d2, cfg)
     for i in range(n):

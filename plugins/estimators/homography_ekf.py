@@ -312,6 +312,8 @@ class HomographyEKF:
                 tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, floor=self._h_floor, q=self._q)
             self._gate0 = kernels.PackedGate(kernels.new_gate(CONFIDENCE_HISTORY))
             self._packed_gate = kernels.PackedGate
+            n = len(self._q)
+            self._sizes = n, (n, n), len(self._gate0.g)   # of a state's x, P and gate memory
             self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
@@ -427,7 +429,8 @@ class HomographyEKF:
         for i, d in enumerate(dets):
             box = d.value.box
             self._dets[i] = box.x, box.y, box.w, box.h, d.value.confidence
-        x, P, g = np.empty(len(b.x)), np.empty(b.P.shape), np.empty(len(b.gate.g))
+        nx, nP, ng = self._sizes
+        x, P, g = np.empty(nx), np.empty(nP), np.empty(ng)
         if self._kernel(self._cfg, b.x, b.P, b.gate.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
             return FilterState(x, P, self._packed_gate(g))
         return b                                # not finite: a degenerate input, held
