@@ -215,8 +215,8 @@ class HomographyEKF:
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
         feedback_hold: bool = param(
             False, "with feedback, hand the tracker no search centre while its newest box is from "
-            "the previous tick, was used by the filter at a relative confidence of at least "
-            "HOLD_CONFIDENCE and contains the estimate's centre (the tracker searches there "
+            "the previous tick, was used by the filter at a relative confidence of at least 0.5 "
+            "(HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches there "
             "anyway); otherwise the estimate (paper L424; docs/mata.md)")
         q_adapt: bool | None = _preset_param(
             "q_adapt", "the corners' process noise times the average (EWMA, alpha_ewma) of the "
