@@ -185,14 +185,17 @@ def _box_side(x):
 def _solve_into(S, B, out):
     """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
     a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
-    over whole rows of B (independent sums, which the compiler vectorises)."""
-    m, k = S.shape[0], B.shape[1]
+    over whole rows of B (independent sums, which the compiler vectorises); ``out`` may have
+    more columns than B (zero padding, solved along)."""
+    m, k = S.shape[0], out.shape[1]
     A = np.empty((m, m))
     for i in range(m):
         for j in range(m):
             A[i, j] = S[i, j]
-        for j in range(k):
+        for j in range(B.shape[1]):
             out[i, j] = B[i, j]
+        for j in range(B.shape[1], k):
+            out[i, j] = 0.0
     for c in range(m):
         p = c
         for r in range(c + 1, m):
@@ -230,33 +233,36 @@ def _joseph_block(x, P, z, s, R):
 
     With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
     P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. The
-    loops run over rows (independent sums, which the compiler vectorises)."""
+    loops run over rows (independent sums, which the compiler vectorises), of K^T and its
+    products padded to a multiple of 8 when that takes one zero column (15 states: 16, which
+    the vector loops cover with no scalar remainder; 0.2 us less per 9-value update here)."""
     n, m = x.shape[0], z.shape[0]
+    nw = n + 1 if n % 8 == 7 else n     # the row width of K^T, W^T and T
     B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
     S = np.empty((m, m))
     for a in range(m):
         for b in range(m):
             S[a, b] = B[a, s + b] + R[a, b]
-    Kt = np.empty((m, n))
+    Kt = np.empty((m, nw))
     _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
-    Wt = np.empty((m, n))               # (K S / 2 - B^T)^T = S^T K^T / 2 - B
+    Wt = np.zeros((m, nw))              # (K S / 2 - B^T)^T = S^T K^T / 2 - B
     for a in range(m):
         for j in range(n):
             Wt[a, j] = -B[a, j]
         for b in range(m):
             f = 0.5 * S[b, a]
-            for j in range(n):
+            for j in range(nw):
                 Wt[a, j] += f * Kt[b, j]
     dx = np.zeros(n)
     for a in range(m):
         r = z[a] - x[s + a]
         for j in range(n):
             dx[j] += Kt[a, j] * r
-    T = np.zeros((n, n))
+    T = np.zeros((n, nw))
     for i in range(n):
         for a in range(m):
             f = Wt[a, i]
-            for j in range(n):
+            for j in range(nw):
                 T[i, j] += f * Kt[a, j]
     for i in range(n):
         x[i] += dx[i]
