@@ -1,0 +1,29 @@
+"""benchmarks/embedded_profiles.py: which tracker calls of a vot_rt run make the emulated
+device's timing profile (hand-written frames.csv files)."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+
+
+def _module():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "embedded_profiles.py"
+    spec = importlib.util.spec_from_file_location("embedded_profiles", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_tracker_wall_times_leave_out_the_initialisation_and_frames_without_a_call(tmp_path):
+    """Two sequences: frame 0 (initialisation, 240 ms) and frames where the tracker did not run
+    (empty or nan) are left out; what remains is 4, 6 (seq a) and 5 ms (seq b), in seconds."""
+    head = "frame,scored,confidence,tracker_ms,source_frame\n"
+    (tmp_path / "a.frames.csv").write_text(head + "0,1,nan,240.5,0\n1,1,nan,nan,0\n2,1,0.9,4.0,1\n3,1,,,1\n4,1,0.8,6.0,3\n")
+    (tmp_path / "b.frames.csv").write_text(head + "0,1,nan,200.0,0\n1,1,0.7,5.0,0\n")
+    got = _module().tracker_wall_s(tmp_path)
+    np.testing.assert_allclose(np.sort(got), [0.004, 0.005, 0.006])
+    assert _module().tracker_wall_s(tmp_path / "missing").size == 0
+
