@@ -101,6 +101,18 @@ class WorldStillTracker(RecordingTracker):
         return TrackerOutput(Box(BOX.x + dx, BOX.y, BOX.w, BOX.h), confidence=0.9)
 
 
+PAN = {4: 15.0, 6: 15.0, 7: 5.0}  # camera pans (px) before frames 4, 6 and 7
+
+
+def pan_calls(**params) -> list:
+    """The tracker's (frame, prior) calls on the LTP pan timeline (PAN, 8 frames, a target still
+    in the world) with block C's paper preset and ``params``."""
+    tracker = WorldStillTracker(PAN)
+    est = HomographyEKF(HomographyEKF.Params(preset="paper", **params))
+    run_sequence(toy_sequence(8), tracker, PanEgoMotion(PAN), est, LTP(), np.random.default_rng(0))
+    return tracker.calls
+
+
 @pytest.mark.parametrize("shift, fed", [(0.0, [1, 2, 3, 4, 5, 6, 7]), (0.5, [4, 6])])
 def test_a_pan_larger_than_half_the_box_is_fed_back_a_smaller_one_is_not(shift, fed):
     # LTP, camera still except pans of 15 px (0.75 of the 20 px box width) before frames 4 and 6
@@ -108,14 +120,11 @@ def test_a_pan_larger_than_half_the_box_is_fed_back_a_smaller_one_is_not(shift, 
     # frame k (the camera motion up to k applied to the box of frame k-1) is the tracker's
     # newest box moved by the pan. With feedback_shift 0.5 only the 15 px pans move the search
     # out of that box; the paper (0) feeds every estimate back.
-    pan = {4: 15.0, 6: 15.0, 7: 5.0}
-    tracker = WorldStillTracker(pan)
-    est = HomographyEKF(HomographyEKF.Params(preset="paper", feedback_shift=shift))
-    run_sequence(toy_sequence(8), tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
-    assert [k for k, p in tracker.calls if p is not None] == fed
-    for k, p in tracker.calls:
+    calls = pan_calls(feedback_shift=shift)
+    assert [k for k, p in calls if p is not None] == fed
+    for k, p in calls:
         if p is not None:  # the prior is the estimate: the world-still target after the pans
-            assert p[0] == pytest.approx(100.0 + sum(v for f, v in pan.items() if f <= k), abs=0.5)
+            assert p[0] == pytest.approx(100.0 + sum(v for f, v in PAN.items() if f <= k), abs=0.5)
             assert p[1] == pytest.approx(100.0, abs=0.5)
 
 
@@ -179,11 +188,7 @@ def test_hold_keeps_the_trackers_own_search_while_its_fresh_box_contains_the_est
     # estimate of frame k is that box moved by the pan; only the 15 px pans put it outside the
     # box, so with feedback_hold frames 2, 3, 5 and 7 search at their own box, as alone (frame
     # 1 has only the initial box, which the filter did not use: the estimate is handed over).
-    pan = {4: 15.0, 6: 15.0, 7: 5.0}
-    tracker = WorldStillTracker(pan)
-    est = HomographyEKF(HomographyEKF.Params(preset="paper", feedback_hold=hold))
-    run_sequence(toy_sequence(8), tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
-    assert [k for k, p in tracker.calls if p is not None] == fed
+    assert [k for k, p in pan_calls(feedback_hold=hold) if p is not None] == fed
 
 
 @pytest.mark.parametrize("preset", ["paper", "mata"])
