@@ -245,7 +245,7 @@ class DroneCamera:
     reframe_size: tuple[float, float] = (0.03, 0.12)  # image widths, log-uniform
     reframe_time: tuple[float, float] = (0.25, 0.6)   # s: duration of a pan
     max_offset: float = 0.35                 # image heights: the framing error saturates here
-    jitter: float = 1.0                      # px at 1280 wide: handheld-like shake (corr. 2 frames)
+    jitter: float = 0.75                     # px at 1280 wide: handheld-like shake (corr. 2 frames)
 
 
 DRONE = DroneCamera()
