@@ -226,7 +226,8 @@ class DroneCamera:
     truth's image-plane statistics and its 10 Hz perfect-tracker NT2F (``benchmarks/oracle.py``),
     pooled over 400 sequences (seeds 0-9, 40 each, at 320x180; ``reframe_rate`` 0.16 -> 0.12 in
     generator 5; the zoom in spells, ``zoom_duty`` 0.8, in generator 6, chosen on the share of
-    10-frame pairs whose box keeps its size, with the ground truth on UAV123's whole-pixel grid);
+    10-frame pairs whose box keeps its size, with the ground truth on UAV123's whole-pixel grid;
+    the handheld ``jitter`` 1 -> 0.75 px in generator 7, on the 1-frame shift on that grid);
     camera rates checked against grid-LK homographies of real drone footage
     (docs/decisions/data.md)."""
 
