@@ -182,18 +182,22 @@ class Estimate:
         default leaves at least a corner of the box on the image). The estimate itself, unchanged,
         when both centres already lie there. The size and the covariance are kept."""
         b = self.box
-        mx, my = margin * max(b.w, 0.0), margin * max(b.h, 0.0)
-
-        def clamp(c: tuple[float, float]) -> tuple[float, float]:
-            return min(max(c[0], -mx), width + mx), min(max(c[1], -my), height + my)
-
-        centre = clamp(b.center)
-        search = None if self.search is None else clamp(self.search)
+        centre = within_image(b.center, b.w, b.h, width, height, margin)
+        search = None if self.search is None else within_image(self.search, b.w, b.h, width, height, margin)
         if centre == b.center and search == self.search:
             return self
         x = b.x if centre[0] == b.cx else centre[0] - b.w / 2.0  # an axis inside keeps its bits
         y = b.y if centre[1] == b.cy else centre[1] - b.h / 2.0
         return replace(self, box=Box(x, y, b.w, b.h), search=search)
+
+
+def within_image(centre: tuple[float, float], w: float, h: float, width: float, height: float,
+                 margin: float = 0.5) -> tuple[float, float]:
+    """A ``w`` x ``h`` box's centre clamped to the ``width`` x ``height`` image grown by ``margin``
+    times the box size on each side (0.5: the box keeps at least a corner on the image). The one
+    bound on estimates (:meth:`Estimate.within`) and on the priors trackers use (``usable_prior``)."""
+    mx, my = margin * max(w, 0.0), margin * max(h, 0.0)
+    return min(max(centre[0], -mx), width + mx), min(max(centre[1], -my), height + my)
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,7 +14,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from mata_eval.types import Box
+from mata_eval.types import Box, within_image
 
 
 def _xywh(box: Box | Sequence[float]) -> tuple[float, float, float, float]:
@@ -105,8 +105,7 @@ def usable_prior(prior: Sequence[float] | None, w: float, h: float, height: int,
         return None
     if not (math.isfinite(cx) and math.isfinite(cy)):
         return None
-    mx, my = margin * max(float(w), 0.0), margin * max(float(h), 0.0)
-    return min(max(cx, -mx), width + mx), min(max(cy, -my), height + my)
+    return within_image((cx, cy), float(w), float(h), width, height, margin)
 
 
 def clip_box(box: Box | Sequence[float], height: int, width: int, margin: float = 0) -> Box:
