@@ -638,9 +638,7 @@ class HomographyEKF:
         f = self.params.feedback_shift
         if not f:
             return est
-        cx, cy = est.prior
-        shift = max(abs(cx - b.cx) / b.w, abs(cy - b.cy) / b.h)
-        return est if shift > f else dataclasses.replace(est, feedback=False)
+        return est if _shift(est.prior, b) > f else dataclasses.replace(est, feedback=False)
 
     def _holds(self, est: Estimate, b: Box) -> bool:
         """``feedback_hold``: the tracker's newest box ``b`` was captured at the previous tick or
@@ -648,8 +646,7 @@ class HomographyEKF:
         contains the search centre offered."""
         if not self._newest_trusted or est.prior is None or self._newest.t_capture < self._previous_t - EPS_T:
             return False
-        cx, cy = est.prior
-        return abs(cx - b.cx) <= b.w / 2.0 and abs(cy - b.cy) <= b.h / 2.0
+        return _shift(est.prior, b) <= 0.5
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
@@ -657,6 +654,12 @@ class HomographyEKF:
         x1, y1, x2, y2 = s.x[:4].tolist()
         w, h = max(x2 - x1, 1.0), max(y2 - y1, 1.0)
         return Estimate(Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h), s.P.copy())
+
+
+def _shift(centre: tuple[float, float], b: Box) -> float:
+    """How far a search centre lies from box ``b``'s centre, in box widths (x) or heights (y),
+    whichever is more: at most 0.5 inside the box (``feedback_shift``, ``feedback_hold``)."""
+    return max(abs(centre[0] - b.cx) / b.w, abs(centre[1] - b.cy) / b.h)
 
 
 def _t_capture(s: Stamped) -> float:
