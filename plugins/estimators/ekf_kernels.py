@@ -108,6 +108,24 @@ class PackedGate(NamedTuple):
         return tuple(self.g[start:start + int(self.g[G_N_ACC])].tolist())
 
 
+class PackedState(NamedTuple):
+    """The compiled path's FilterState: x, P and the gate memory as its packed vector g, which
+    ``gate`` reads as a GateState (one record fewer to build per tick than a FilterState
+    holding a PackedGate)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    g: np.ndarray
+
+    @property
+    def gate(self) -> PackedGate:
+        return PackedGate(self.g)
+
+    @property
+    def ewma(self) -> float | None:
+        return self.gate.ewma
+
+
 def _njit(fn):
     """numba.njit with IEEE semantics (no fastmath; x / 0 gives inf or nan, as numpy does) and
     an on-disk cache; without a writable cache location, compiled per process, quietly."""

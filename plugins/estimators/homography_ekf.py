@@ -119,11 +119,12 @@ class GateState(NamedTuple):
 
 
 class FilterState(NamedTuple):
-    """Everything a tick changes: state, covariance and the gate's memory."""
+    """Everything a tick changes: state, covariance and the gate's memory. The compiled path
+    keeps an ``ekf_kernels.PackedState`` instead: the same fields, the gate packed in a vector."""
 
     x: np.ndarray
     P: np.ndarray
-    gate: GateState  # on the compiled path an ekf_kernels.PackedGate: the same fields, packed
+    gate: GateState
 
     @property
     def ewma(self) -> float | None:
@@ -301,7 +302,7 @@ class HomographyEKF:
         kernels = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
         # the compiled tick (a numba dispatcher, picklable like the filter) or None for numpy
         self._kernel = None if kernels is None else kernels.tick
-        self._gate0 = GateState()
+        self._state, self._gate0 = FilterState, GateState()   # a tick's state record, the first gate
         if kernels is not None:
             self._motion_codes = (kernels.MOTION_NONE, kernels.MOTION_H, kernels.MOTION_H_COV)
             self._cfg = kernels.config(
@@ -310,10 +311,9 @@ class HomographyEKF:
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
                 p0_v=p.p0_v, q_adapt=p.q_adapt, alpha=p.alpha_ewma, relative=p.gate == "relative",
                 tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, floor=self._h_floor, q=self._q)
-            self._gate0 = kernels.PackedGate(kernels.new_gate(CONFIDENCE_HISTORY))
-            self._packed_gate = kernels.PackedGate
+            self._state, self._gate0 = kernels.PackedState, kernels.new_gate(CONFIDENCE_HISTORY)
             n = len(self._q)
-            self._sizes = n, (n, n), len(self._gate0.g)   # of a state's x, P and gate memory
+            self._sizes = n, (n, n), len(self._gate0)   # of a state's x, P and gate memory
             self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
@@ -330,7 +330,7 @@ class HomographyEKF:
         x = np.zeros(em.state_dim(self.n_deriv))
         x[em.CORNERS] = box.corners()
         x[em.HOM] = np.eye(3).reshape(9)
-        start = FilterState(x, self._p0.copy(), self._gate0)
+        start = self._state(x, self._p0.copy(), self._gate0)
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
         self._newest_fit, self._newest_trusted, self._previous_t = None, False, -math.inf
@@ -431,8 +431,8 @@ class HomographyEKF:
             self._dets[i] = box.x, box.y, box.w, box.h, d.value.confidence
         nx, nP, ng = self._sizes
         x, P, g = np.empty(nx), np.empty(nP), np.empty(ng)
-        if self._kernel(self._cfg, b.x, b.P, b.gate.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
-            return FilterState(x, P, self._packed_gate(g))
+        if self._kernel(self._cfg, b.x, b.P, b.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
+            return self._state(x, P, g)
         return b                                # not finite: a degenerate input, held
 
     def _motion_input(self, motions: list[Stamped[Motion]]) -> tuple[np.ndarray, np.ndarray, int]:
@@ -652,7 +652,8 @@ class HomographyEKF:
     def _estimate(s: FilterState) -> Estimate:
         """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
         x1, y1, x2, y2 = s.x[:4].tolist()
-        w, h = max(x2 - x1, 1.0), max(y2 - y1, 1.0)
+        w, h = x2 - x1, y2 - y1
+        w, h = (1.0 if w < 1.0 else w), (1.0 if h < 1.0 else h)   # max(w, 1.0), without a call
         return Estimate(Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h), s.P.copy())
 
 
