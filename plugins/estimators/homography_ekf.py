@@ -22,6 +22,7 @@ import dataclasses
 import math
 import os
 import statistics
+import struct
 from dataclasses import dataclass
 from typing import Any, Literal, Mapping, NamedTuple, Sequence
 
@@ -315,6 +316,7 @@ class HomographyEKF:
             n = len(self._q)
             self._sizes = n, (n, n), len(self._gate0)   # of a state's x, P and gate memory
             self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
+            self._det_row = kernels.DET_ROW, kernels.DET_SIZE
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
@@ -426,9 +428,10 @@ class HomographyEKF:
             dets = sorted(dets, key=_t_capture)
             if len(dets) > len(self._dets):
                 self._dets = np.empty((2 * len(dets), self._dets.shape[1]))
+        row, size = self._det_row
         for i, d in enumerate(dets):
             box = d.value.box
-            self._dets[i] = box.x, box.y, box.w, box.h, d.value.confidence
+            struct.pack_into(row, self._dets, i * size, box.x, box.y, box.w, box.h, d.value.confidence)
         nx, nP, ng = self._sizes
         x, P, g = np.empty(nx), np.empty(nP), np.empty(ng)
         if self._kernel(self._cfg, b.x, b.P, b.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
