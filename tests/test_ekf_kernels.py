@@ -55,6 +55,8 @@ def scenario(seed: int, n: int = 90, delay: bool = False, box_every: int = 2):
         box = box + np.array([H[0, 2], H[1, 2], H[0, 2], H[1, 2]]) + rng.normal(0, 0.5, 4)
         if k % box_every == 0:
             conf = round(float(np.clip(0.7 + 0.25 * rng.normal(), 0, 1)), 2) if k % 7 else 0.03  # R's floor
+            if 64 <= k < 80:                                    # a gradual decline (follow_consistent)
+                conf = round(0.8 ** (k - 62), 3)
             conf = {4: np.nan, 34: np.nan, 44: -0.2, 52: np.inf}.get(k, conf)  # 4: a NaN median
             z = box + rng.normal(0, 2.0, 4)
             if k % 19 == 0:
@@ -88,7 +90,8 @@ CASES = [dict(), dict(delay="compensate"), dict(delay="ignore"), dict(h_update="
          dict(model="ca"), dict(model="cj"), dict(gating=False), dict(camera=False),
          dict(box_motion="corners"), dict(box_motion="centre"),
          dict(feedback_carry=True, feedback_shift=0.25), dict(feedback_hold=True), dict(q_adapt=True), dict(q_adapt=False),
-         dict(q_adapt=True, chi2_gate=0.0)]
+         dict(q_adapt=True, chi2_gate=0.0), dict(follow_consistent=True),
+         dict(follow_consistent=True, gate="absolute", tau_diff=0.5)]
 
 
 def skip_while_the_kernel_lags() -> None:
@@ -120,7 +123,7 @@ def assert_same_gate(est: HomographyEKF, ref: HomographyEKF) -> None:
     """The compiled gate memory reads as the reference's: exactly, but for the innovation
     average (rounding)."""
     gate, ref_gate = est.state.gate, ref.state.gate
-    assert (gate.ewma, gate.n_used) == (ref_gate.ewma, ref_gate.n_used)
+    assert (gate.ewma, gate.n_used, gate.following) == (ref_gate.ewma, ref_gate.n_used, ref_gate.following)
     for field in ("accepted", "ranked"):    # NaN where gating is off (a NaN confidence is used)
         np.testing.assert_array_equal(getattr(gate, field), getattr(ref_gate, field), field)
     assert gate.nis == pytest.approx(ref_gate.nis, rel=1e-12)
@@ -155,6 +158,9 @@ def test_the_scenario_exercises_what_it_claims():
     n_dets = sum(len(d) for _, _, d in ticks)
     assert held >= 3                      # the overflowing H holds its tick (k = 14, 31, 48, ...)
     assert 0 < used < n_dets              # some boxes used, some rejected (NaN, zero width, gate)
+    follow = HomographyEKF(P(preset="mata", follow_consistent=True), backend="numpy")
+    run(follow, ticks)                    # the decline's boxes: the level test spares some
+    assert follow.state.gate.n_used > est.state.gate.n_used
 
 
 def test_backend_choice(monkeypatch):

@@ -164,6 +164,55 @@ def test_relative_gate_follows_a_gradual_decline_and_rejects_a_sudden_one():
     assert used == list(range(30)) + [31, 33]
 
 
+def _used(est, boxes, confs, every=3):
+    """Feeds box i with confidence confs[i] every 3rd tick (static camera, no motion); returns
+    the indices of the boxes the filter used."""
+    est.initialize(boxes[0], 0.0)
+    used = []
+    for i, (b, c) in enumerate(zip(boxes, confs)):
+        k = (i + 1) * every
+        before = est.state.gate.n_used
+        est.step(k * DT, [], [Stamped(TrackerOutput(b, c), k * DT, k * DT)])
+        if est.state.gate.n_used > before:
+            used.append(i)
+    return used
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_follow_consistent_keeps_a_slowly_declining_tracker_while_its_boxes_agree(backend):
+    """11 boxes at confidence 1, then a decline 0.6, 0.3, 0.15, 0.1 and 0.05 four times, all on
+    the same place (syn001: a turning target, KCF's box stays on it). The median of the used
+    confidences stays 1 (at most 8 low ones against 11 ones), so the relative confidence is the
+    raw one and its EWMA (alpha 0.3) is, by hand: 0.88, 0.706, 0.5392, 0.40744, 0.300208, then
+    0.2251456 < tau_ewma 0.25 at box 16 while the drop 0.2251 - 0.05 = 0.175 < tau_diff 0.5. The
+    level test drops the tracker from box 16 on (and its EWMA never recovers); with
+    follow_consistent it is kept (innovation 0). A box 100 px off at 16 is inconsistent (d2 >>
+    18.47): rejected, and the boxes after it, on the place again, are too (the filter no longer
+    follows the tracker: the level test decides when to resume). A sudden fall from the plateau
+    (0.2: EWMA 0.76, drop 0.56 > 0.5) is rejected either way."""
+    if backend == "numba":
+        pytest.importorskip("numba")
+    from mata_eval_plugins.estimators.homography_ekf import confidence_gate
+    confs = [1.0] * 11 + [0.6, 0.3, 0.15, 0.1, 0.05, 0.05, 0.05, 0.05]
+    s, levels = None, []
+    for c in confs:
+        s, _ = confidence_gate(s, c, 0.3, 0.25, 0.5)
+        levels.append(s)
+    np.testing.assert_allclose(levels[11:17], [0.88, 0.706, 0.5392, 0.40744, 0.300208, 0.2251456])
+    assert confidence_gate(0.300208, 0.05, 0.3, 0.25, 0.5, consistent=True) == (pytest.approx(0.2251456), True)
+    assert confidence_gate(0.300208, 0.05, 0.3, 0.25, 0.5) == (pytest.approx(0.2251456), False)
+    assert confidence_gate(1.0, 0.2, 0.3, 0.25, 0.5, consistent=True) == (pytest.approx(0.76), False)
+
+    box, far = Box(100, 100, 40, 40), Box(200, 100, 40, 40)
+    on_place = [box] * len(confs)
+    one_off = on_place[:16] + [far] + on_place[17:]
+    make = lambda follow: HomographyEKF(P(follow_consistent=follow), backend=backend)  # noqa: E731
+    assert _used(make(False), on_place, confs) == list(range(16))
+    assert _used(make(True), on_place, confs) == list(range(19))
+    assert _used(make(True), one_off, confs) == list(range(16))
+    assert _used(make(True), [box] * 13, [1.0] * 11 + [0.2, 1.0]) == list(range(11)) + [12]
+
+
 def test_r_grows_as_the_relative_confidence_falls():
     est = HomographyEKF(P())
     est.initialize(Box(100, 100, 40, 40), 0.0)

@@ -41,15 +41,15 @@ IMPLEMENTS = frozenset({
     "tau_sigma", "delay", "history_s", "follow_prior", "velocity_decay_s", "h_update", "box_motion",
     "r_box", "r_box_rel", "r_confidence", "r_h_floor", "q_box", "q_box_rel", "q_h", "q_v", "q_a", "q_j",
     "p0_box", "p0_h", "p0_v", "p0_a", "p0_j",
-    "q_adapt", "feedback_shift", "feedback_carry", "feedback_hold"})  # the feedback ones act in step(), outside the tick
+    "q_adapt", "follow_consistent", "feedback_shift", "feedback_carry", "feedback_hold"})  # the feedback ones act in step(), outside the tick
 
 # cfg: the filter's constant parameters, one float vector (numba's dispatch costs per argument):
 # the scalars below, then the 9 floors of the homography R (C_FLOOR) and the Q rates (C_Q, one
 # per state entry)
 (C_NDERIV, C_CENTRE, C_H_BEFORE, C_GATING, C_TAU_SIGMA, C_CHI2, C_R_BOX, C_R_BOX_REL,
  C_R_CONF, C_Q_BOX_REL, C_FOLLOW, C_DECAY, C_P0_V, C_Q_ADAPT, C_ALPHA, C_RELATIVE, C_TAU_EWMA,
- C_TAU_DIFF) = range(18)
-C_FLOOR = 18
+ C_TAU_DIFF, C_FOLLOW_CONSISTENT) = range(19)
+C_FLOOR = 19
 C_Q = C_FLOOR + 9
 # the motion input of a tick
 MOTION_NONE, MOTION_H, MOTION_H_COV = 0, 1, 2
@@ -63,18 +63,19 @@ DET_ROW = f"={N_DET}d"
 DET_SIZE = struct.calcsize(DET_ROW)
 # the gate memory (HomographyEKF.GateState packed in one float vector g): the EWMA (NaN before
 # the first confidence), boxes used, q_adapt's innovation average, the number m of accepted
-# confidences kept, then the last m of them (oldest first, from G_ACCEPTED) and the same in
-# increasing order (from G_ACCEPTED + history); history = (len(g) - G_ACCEPTED) // 2
-G_EWMA, G_N_USED, G_NIS, G_N_ACC, G_ACCEPTED = range(5)
+# confidences kept, whether the previous box was used (1.0) or not (0.0), then the last m
+# accepted confidences (oldest first, from G_ACCEPTED) and the same in increasing order (from
+# G_ACCEPTED + history); history = (len(g) - G_ACCEPTED) // 2
+G_EWMA, G_N_USED, G_NIS, G_N_ACC, G_FOLLOWING, G_ACCEPTED = range(6)
 
 
 def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
            r_box: float, r_box_rel: float, r_conf: bool, q_box_rel: float, follow: float, decay: float,
            p0_v: float, q_adapt: bool, alpha: float, relative: bool, tau_ewma: float, tau_diff: float,
-           floor: np.ndarray, q: np.ndarray) -> np.ndarray:
+           follow_consistent: bool, floor: np.ndarray, q: np.ndarray) -> np.ndarray:
     """The ``cfg`` vector of :func:`tick` (HomographyEKF's resolved parameters)."""
     scalars = [n_deriv, centre, h_before, gating, tau_sigma, chi2, r_box, r_box_rel, r_conf, q_box_rel,
-               follow, decay, p0_v, q_adapt, alpha, relative, tau_ewma, tau_diff]
+               follow, decay, p0_v, q_adapt, alpha, relative, tau_ewma, tau_diff, follow_consistent]
     assert len(scalars) == C_FLOOR and len(floor) == 9
     return np.concatenate([np.asarray(scalars, float), floor, q])
 
@@ -103,6 +104,10 @@ class PackedGate(NamedTuple):
     @property
     def nis(self) -> float:
         return float(self.g[G_NIS])
+
+    @property
+    def following(self) -> bool:
+        return bool(self.g[G_FOLLOWING])
 
     @property
     def accepted(self) -> tuple[float, ...]:
@@ -567,13 +572,34 @@ def _predict(x, P, cfg, q, dt, nis):
 
 
 @_njit
+def _box_r(x, cfg, conf):
+    """HomographyEKF._box_noise: the variance of each corner of a box at relative confidence conf."""
+    r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
+    if cfg[C_R_CONF] != 0.0:
+        r = r / max(conf, 0.1) ** 2
+    return r
+
+
+@_njit
+def _consistent(x, P, cfg, z):
+    """follow_consistent: the box z's squared Mahalanobis innovation, under the R of a box at the
+    tracker's typical confidence, is at most chi2_gate (HomographyEKF._update_detection)."""
+    r = _box_r(x, cfg, 1.0)
+    nu = np.empty(4)
+    S = np.empty((4, 4))
+    for a in range(4):
+        nu[a] = z[a] - x[a]
+        for b in range(4):
+            S[a, b] = P[a, b] + (r if a == b else 0.0)
+    return _mahalanobis2(nu, S) <= cfg[C_CHI2]
+
+
+@_njit
 def _update_box(x, P, cfg, z, conf):
     """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
     update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation
     (NaN when neither chi2_gate nor q_adapt needs it)."""
-    r = cfg[C_R_BOX] + (cfg[C_R_BOX_REL] * _box_side(x)) ** 2
-    if cfg[C_R_CONF] != 0.0:
-        r = r / max(conf, 0.1) ** 2
+    r = _box_r(x, cfg, conf)
     R = np.zeros((4, 4))
     for a in range(4):
         R[a, a] = r
@@ -639,7 +665,14 @@ def _relative_confidence(ranked, n, confidence):
 
 
 @_njit
-def _gate(cfg, g, det):
+def _valid_box(det):
+    """Box.is_valid of a box row: finite corner, positive finite size."""
+    w, h = det[D_W], det[D_H]
+    return 0 < w < np.inf and 0 < h < np.inf and np.isfinite(det[D_X]) and np.isfinite(det[D_Y])
+
+
+@_njit
+def _gate(cfg, g, det, consistent):
     """HomographyEKF._gate_detection (with confidence_gate) on the gate memory g, in place:
     returns whether the box is used and the confidence its noise uses."""
     m = (g.shape[0] - G_ACCEPTED) // 2
@@ -654,14 +687,14 @@ def _gate(cfg, g, det):
         a = cfg[C_ALPHA]
         s = conf if np.isnan(g[G_EWMA]) else a * conf + (1.0 - a) * g[G_EWMA]
         g[G_EWMA] = s
-        accept = s >= cfg[C_TAU_EWMA] and s - conf <= cfg[C_TAU_DIFF]
+        accept = (s >= cfg[C_TAU_EWMA] or consistent) and s - conf <= cfg[C_TAU_DIFF]
     if relative and conf <= 0:
         accept = False
-    w, h = det[D_W], det[D_H]
-    valid = 0 < w < np.inf and 0 < h < np.inf and np.isfinite(det[D_X]) and np.isfinite(det[D_Y])
-    if not valid or (cfg[C_GATING] != 0.0 and not accept):
+    if not _valid_box(det) or (cfg[C_GATING] != 0.0 and not accept):
+        g[G_FOLLOWING] = 0.0
         return False, 0.0
     g[G_N_USED] += 1
+    g[G_FOLLOWING] = 1.0
     if relative:
         if n == m:                         # the oldest one leaves
             i = _bisect(ranked, n, accepted[0], False)
@@ -706,11 +739,13 @@ def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
     z = np.empty(4)
     for b in range(n_dets):
         det = dets[b]
-        used, conf = _gate(cfg, g, det)
-        if not used:
-            continue
         z[0], z[1] = det[D_X], det[D_Y]
         z[2], z[3] = det[D_X] + det[D_W], det[D_Y] + det[D_H]
+        consistent = (cfg[C_FOLLOW_CONSISTENT] != 0.0 and g[G_FOLLOWING] != 0.0 and cfg[C_CHI2] != 0.0
+                      and _valid_box(det) and _consistent(x, P, cfg, z))
+        used, conf = _gate(cfg, g, det, consistent)
+        if not used:
+            continue
         d2 = _update_box(x, P, cfg, z, conf)
         if cfg[C_Q_ADAPT] != 0.0:
             g[G_NIS] = _innovation_average(g[G_NIS], d2, cfg)

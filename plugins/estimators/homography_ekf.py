@@ -55,12 +55,12 @@ _R_H_FLOOR = [1e-8, 1e-8, 1e-4, 1e-8, 1e-8, 1e-4, 1e-14, 1e-14, 1e-10]
 PAPER_BLOCK_C = "MATA, the paper's block C (preset paper)"
 
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, delay="ignore",
-                  box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False, q_box=30.0,
-                  q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
-    "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, delay="compensate",
-                 box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True, q_box=0.0,
-                 q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
+    "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
+                  delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
+                  q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
+    "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=False,
+                 delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
+                 q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
 }
 
 
@@ -73,14 +73,15 @@ def _preset_param(key: str, doc: str) -> Any:
 # --- block A gating (eq. ewma_score) ---------------------------------------------------------
 
 def confidence_gate(ewma: float | None, confidence: float, alpha: float, tau_ewma: float,
-                    tau_diff: float) -> tuple[float | None, bool]:
+                    tau_diff: float, consistent: bool = False) -> tuple[float | None, bool]:
     """Update the EWMA S_k = alpha P_k + (1 - alpha) S_{k-1} with the tracker confidence P_k and
-    decide: accept unless S_k < tau_ewma or P_k dropped below S_k by more than tau_diff.
+    decide: accept unless S_k < tau_ewma (the level test, skipped for a ``consistent`` box:
+    ``follow_consistent``) or P_k dropped below S_k by more than tau_diff (the drop test).
     The first confidence seeds the average (S_1 = P_1). Returns (S_k, accept)."""
     if not math.isfinite(confidence):
         return ewma, False
     s = confidence if ewma is None else alpha * confidence + (1.0 - alpha) * ewma
-    return s, bool(s >= tau_ewma and s - confidence <= tau_diff)
+    return s, bool((s >= tau_ewma or consistent) and s - confidence <= tau_diff)
 
 
 def relative_confidence(history: tuple[float, ...], confidence: float, ranked: bool = False) -> float:
@@ -117,6 +118,7 @@ class GateState(NamedTuple):
     n_used: int = 0  # boxes used since init
     ranked: tuple[float, ...] = ()  # ``accepted`` in increasing order (a cheap median)
     nis: float = 1.0  # q_adapt: average normalised innovation squared of the used boxes
+    following: bool = False  # the filter used the tracker's previous box (``follow_consistent``)
 
 
 class FilterState(NamedTuple):
@@ -195,6 +197,12 @@ class HomographyEKF:
             "chi2_gate", "a box whose squared Mahalanobis innovation (4 corners) exceeds this "
             "(18.47 = chi2 99.9 %) gets R multiplied by d2 / chi2_gate (a bounded step, not a "
             "reject); 0 = off")
+        follow_consistent: bool | None = _preset_param(
+            "follow_consistent", "while the filter uses the tracker's boxes, the EWMA level test "
+            "(tau_ewma) does not reject a box consistent with the prediction (squared Mahalanobis "
+            "innovation under the R of a box at typical confidence at most chi2_gate); the drop "
+            "test still applies and R still grows as the confidence falls, so a tracker whose "
+            "confidence declines slowly on a target that changes its look is followed, not dropped")
         tau_sigma: float = param(2.0, "reject a homography whose covariance moves the box centre by more than this std (px)")
         delay: Literal["ignore", "compensate"] | None = _preset_param(
             "delay", "delayed measurements: apply on arrival (paper) or at their capture time")
@@ -311,7 +319,8 @@ class HomographyEKF:
                 gating=p.gating, tau_sigma=p.tau_sigma, chi2=p.chi2_gate, r_box=p.r_box, r_box_rel=p.r_box_rel,
                 r_conf=p.r_confidence, q_box_rel=p.q_box_rel, follow=p.follow_prior, decay=p.velocity_decay_s,
                 p0_v=p.p0_v, q_adapt=p.q_adapt, alpha=p.alpha_ewma, relative=p.gate == "relative",
-                tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, floor=self._h_floor, q=self._q)
+                tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, follow_consistent=p.follow_consistent,
+                floor=self._h_floor, q=self._q)
             self._state, self._gate0 = kernels.PackedState, kernels.new_gate(CONFIDENCE_HISTORY)
             n = len(self._q)
             self._sizes = n, (n, n), len(self._gate0)   # of a state's x, P and gate memory
@@ -551,15 +560,21 @@ class HomographyEKF:
     def _update_detection(self, x: np.ndarray, P: np.ndarray, gate: GateState,
                           out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, GateState]:
         """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
-        confidence relative to its median), then a partial update of the four corners with R of
+        confidence relative to its median; with ``follow_consistent`` the level test spares a box
+        consistent with the prediction while the previous box was used), then a partial update of the four corners with R of
         :meth:`_box_noise`, inflated for an improbable innovation (chi2_gate; a hard reject
         there locks a confidently wrong filter out of all later boxes). A non-finite or empty
         box is never used."""
         p = self.params
-        gate, conf = self._gate_detection(gate, out)
+        z = np.asarray(out.box.corners(), float)
+        consistent = False
+        if p.follow_consistent and gate.following and p.chi2_gate and out.box.is_valid:
+            # the innovation as a box at the tracker's typical confidence would have it
+            d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + self._box_noise(x, 1.0))
+            consistent = d2 <= p.chi2_gate
+        gate, conf = self._gate_detection(gate, out, consistent)
         if conf is None:
             return x, P, gate
-        z = np.asarray(out.box.corners(), float)
         R = self._box_noise(x, conf)
         if p.q_adapt:  # before R is inflated: d2 measures the prediction against the box's R
             d2 = em.mahalanobis2(z - x[em.CORNERS], P[em.CORNERS, em.CORNERS] + R)
@@ -576,7 +591,8 @@ class HomographyEKF:
         cap = p.chi2_gate if p.chi2_gate else np.inf
         return em.normalised_innovation_average(nis, d2, 4, cap, p.alpha_ewma)
 
-    def _gate_detection(self, gate: GateState, out: TrackerOutput) -> tuple[GateState, float | None]:
+    def _gate_detection(self, gate: GateState, out: TrackerOutput,
+                        consistent: bool = False) -> tuple[GateState, float | None]:
         """Block A's gate (needs no state): the gate memory after this box and the confidence
         its noise uses (relative with gate ``relative``), or None when the box is not used. The
         compiled path runs its twin, ``ekf_kernels._gate``, on a packed memory."""
@@ -585,19 +601,19 @@ class HomographyEKF:
         relative = p.gate == "relative"
         if relative:
             conf = relative_confidence(gate.ranked, raw, ranked=True)
-        ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff)
+        ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff, consistent)
         if relative and conf <= 0:
             accept = False  # a tracker that found nothing says so with confidence 0
         if not out.box.is_valid or (p.gating and not accept):
-            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked, gate.nis), None
+            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked, gate.nis, False), None
         if not relative:
-            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked, gate.nis), conf
+            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked, gate.nis, True), conf
         ranked = list(gate.ranked)
         if len(gate.accepted) == CONFIDENCE_HISTORY:   # the oldest one leaves
             del ranked[bisect.bisect_left(ranked, gate.accepted[0])]
         bisect.insort(ranked, raw)
         return GateState(ewma, gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (raw,), gate.n_used + 1,
-                         tuple(ranked), gate.nis), conf
+                         tuple(ranked), gate.nis, True), conf
 
     def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
