@@ -158,8 +158,10 @@ def test_relative_gate_follows_a_gradual_decline_and_rejects_a_sudden_one():
     decline = [round(0.9 - 0.03 * (i + 1), 2) for i in range(19)]  # 0.87 ... 0.33
     used = _dets(HomographyEKF(P()), steady + decline)
     assert used == list(range(49))
-    used = _dets(HomographyEKF(P(tau_ewma=0.5)), steady + decline)
+    used = _dets(HomographyEKF(P(tau_ewma=0.5, follow_consistent=False)), steady + decline)
     assert used[-1] < 48  # the former preset value rejects the end of the decline
+    used = _dets(HomographyEKF(P(tau_ewma=0.5)), steady + decline)
+    assert used == list(range(49))  # unless the boxes agree with the prediction (follow_consistent)
     used = _dets(HomographyEKF(P()), steady + [0.2, 0.9, 0.0, 0.9])
     assert used == list(range(30)) + [31, 33]
 

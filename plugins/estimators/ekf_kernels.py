@@ -672,9 +672,11 @@ def _valid_box(det):
 
 
 @_njit
-def _gate(cfg, g, det, consistent):
+def _gate(cfg, g, det, x, P, z):
     """HomographyEKF._gate_detection (with confidence_gate) on the gate memory g, in place:
-    returns whether the box is used and the confidence its noise uses."""
+    returns whether the box is used and the confidence its noise uses. The consistency of
+    follow_consistent (with the predicted x, P and the box corners z) is computed only where the
+    level test fails (HomographyEKF._update_detection computes it first; the same decision)."""
     m = (g.shape[0] - G_ACCEPTED) // 2
     accepted, ranked = g[G_ACCEPTED:G_ACCEPTED + m], g[G_ACCEPTED + m:]
     n = int(g[G_N_ACC])
@@ -687,7 +689,11 @@ def _gate(cfg, g, det, consistent):
         a = cfg[C_ALPHA]
         s = conf if np.isnan(g[G_EWMA]) else a * conf + (1.0 - a) * g[G_EWMA]
         g[G_EWMA] = s
-        accept = (s >= cfg[C_TAU_EWMA] or consistent) and s - conf <= cfg[C_TAU_DIFF]
+        level = s >= cfg[C_TAU_EWMA]
+        if (not level and cfg[C_FOLLOW_CONSISTENT] != 0.0 and g[G_FOLLOWING] != 0.0
+                and cfg[C_CHI2] != 0.0 and _valid_box(det)):
+            level = _consistent(x, P, cfg, z)
+        accept = level and s - conf <= cfg[C_TAU_DIFF]
     if relative and conf <= 0:
         accept = False
     if not _valid_box(det) or (cfg[C_GATING] != 0.0 and not accept):
@@ -741,9 +747,7 @@ def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
         det = dets[b]
         z[0], z[1] = det[D_X], det[D_Y]
         z[2], z[3] = det[D_X] + det[D_W], det[D_Y] + det[D_H]
-        consistent = (cfg[C_FOLLOW_CONSISTENT] != 0.0 and g[G_FOLLOWING] != 0.0 and cfg[C_CHI2] != 0.0
-                      and _valid_box(det) and _consistent(x, P, cfg, z))
-        used, conf = _gate(cfg, g, det, consistent)
+        used, conf = _gate(cfg, g, det, x, P, z)
         if not used:
             continue
         d2 = _update_box(x, P, cfg, z, conf)

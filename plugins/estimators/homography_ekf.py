@@ -5,9 +5,10 @@ Two presets (docs/mata.md): ``paper`` is block C as the paper describes it (EWMA
 gate with absolute thresholds, corners through H, fixed R, delayed boxes applied on arrival);
 ``mata``, the default, is the filter that does not make its tracker worse (delays compensated,
 rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
-confidence statistics plus innovation gating, R growing as confidence falls, corner process
-noise matched to the innovations). A parameter left
-unset takes its preset's value; any parameter set in YAML overrides the preset.
+confidence statistics that keeps following a tracker whose boxes agree with the prediction,
+innovation gating, R growing as confidence falls, corner process noise matched to the
+innovations). A parameter left unset takes its preset's value; any parameter set in YAML
+overrides the preset.
 
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
 interval ending at this tick updates the H state *before* the corners are propagated (the
@@ -58,7 +59,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
                   delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
                   q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
-    "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=False,
+    "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=True,
                  delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
                  q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
 }
@@ -561,10 +562,10 @@ class HomographyEKF:
                           out: TrackerOutput) -> tuple[np.ndarray, np.ndarray, GateState]:
         """Block A: confidence gate (eq. ewma_score, on the tracker's confidence or on the
         confidence relative to its median; with ``follow_consistent`` the level test spares a box
-        consistent with the prediction while the previous box was used), then a partial update of the four corners with R of
-        :meth:`_box_noise`, inflated for an improbable innovation (chi2_gate; a hard reject
-        there locks a confidently wrong filter out of all later boxes). A non-finite or empty
-        box is never used."""
+        consistent with the prediction while the previous box was used), then a partial update
+        of the four corners with R of :meth:`_box_noise`, inflated for an improbable innovation
+        (chi2_gate; a hard reject there locks a confidently wrong filter out of all later
+        boxes). A non-finite or empty box is never used."""
         p = self.params
         z = np.asarray(out.box.corners(), float)
         consistent = False
