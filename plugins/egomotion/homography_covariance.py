@@ -19,6 +19,7 @@ homography (h11..h32, d = 8), affine (h11..h23, d = 6), similarity ``[[a, -b, tx
 
 from __future__ import annotations
 
+import functools
 from typing import Literal
 
 import numpy as np
@@ -27,18 +28,27 @@ Model = Literal["homography", "affine", "similarity", "translation"]
 MODELS: tuple[str, ...] = ("homography", "affine", "similarity", "translation")
 
 
+_E9 = np.eye(9)
+_E9.setflags(write=False)
+
+
+@functools.cache
 def tangent_basis(model: str) -> np.ndarray:
-    """(9, d) basis of the model's tangent space in row-major vec(H), h33 = 1 chart."""
-    e = np.eye(9)
+    """(9, d) basis of the model's tangent space in row-major vec(H), h33 = 1 chart (read-only:
+    built once per model, it is asked for several times per frame)."""
+    e = _E9
     if model == "homography":
-        return e[:, :8].copy()
-    if model == "affine":
-        return e[:, :6].copy()
-    if model == "similarity":  # a -> h11 = h22, b -> h21 = -h12, tx -> h13, ty -> h23
-        return np.stack([e[0] + e[4], e[3] - e[1], e[2], e[5]], axis=1)
-    if model == "translation":
-        return np.stack([e[2], e[5]], axis=1)
-    raise ValueError(f"unknown motion model {model!r}; expected one of {', '.join(MODELS)}")
+        A = e[:, :8].copy()
+    elif model == "affine":
+        A = e[:, :6].copy()
+    elif model == "similarity":  # a -> h11 = h22, b -> h21 = -h12, tx -> h13, ty -> h23
+        A = np.stack([e[0] + e[4], e[3] - e[1], e[2], e[5]], axis=1)
+    elif model == "translation":
+        A = np.stack([e[2], e[5]], axis=1)
+    else:
+        raise ValueError(f"unknown motion model {model!r}; expected one of {', '.join(MODELS)}")
+    A.setflags(write=False)
+    return A
 
 
 def degrees_of_freedom(model: str) -> int:
@@ -92,7 +102,8 @@ def similarity_normalisation(pts: np.ndarray) -> np.ndarray:
     distance from it sqrt(2)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
     c = pts.mean(axis=0)
-    d = float(np.mean(np.linalg.norm(pts - c, axis=1)))
+    r = pts - c
+    d = float(np.mean(np.sqrt(np.add.reduce(r * r, axis=1))))  # np.linalg.norm(r, axis=1), its arithmetic
     s = np.sqrt(2.0) / d if d > 0 else 1.0
     return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
 
@@ -104,7 +115,7 @@ def h33_chart(H: np.ndarray, cov: np.ndarray | None = None) -> tuple[np.ndarray,
     Hn = H / h9
     if cov is None:
         return Hn, None
-    G = (np.eye(9) - np.outer(Hn.reshape(9), np.eye(9)[8])) / h9
+    G = (_E9 - np.outer(Hn.reshape(9), _E9[8])) / h9
     return Hn, G @ cov @ G.T
 
 
