@@ -429,11 +429,23 @@ class HomographyEKF:
 
     def _tick_compiled(self, tick: _Tick) -> FilterState:
         """:meth:`_tick_state` in one compiled call (``ekf_kernels.tick``), the confidence gate
-        and its memory (a ``PackedGate``) included; the composition of several motions in one
-        tick is decided here, exactly as the numpy path decides it."""
-        b = tick.before
-        H, C, motion = self._motion_input(tick.motions)
-        dets = tick.detections
+        and its memory (a ``PackedGate``) included. The motion input is decided here, exactly
+        as the numpy path decides it: one motion goes as it comes (the kernel tests that it is
+        finite), several are composed by :meth:`_motion_measurement`."""
+        b, motions, dets = tick.before, tick.motions, tick.detections
+        no_motion, with_h, with_cov = self._motion_codes
+        H, C, motion = self._no_h, self._no_cov, no_motion
+        if len(motions) == 1 and self.params.camera:
+            m = motions[0].value
+            Hm = np.asarray(m.H, float)
+            if m.valid and Hm.shape == (3, 3):
+                if m.cov is None:
+                    H, motion = Hm, with_h
+                elif (Cm := np.asarray(m.cov, float)).shape == (9, 9):
+                    H, C, motion = Hm, Cm, with_cov
+        elif motions and (meas := self._motion_measurement(motions)) is not None:
+            H, C = meas
+            C, motion = (self._no_cov, with_h) if C is None else (C, with_cov)
         if len(dets) > 1:
             dets = sorted(dets, key=_t_capture)
             if len(dets) > len(self._dets):
@@ -447,25 +459,6 @@ class HomographyEKF:
         if self._kernel(self._cfg, b.x, b.P, b.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
             return self._state(x, P, g)
         return b                                # not finite: a degenerate input, held
-
-    def _motion_input(self, motions: list[Stamped[Motion]]) -> tuple[np.ndarray, np.ndarray, int]:
-        """The compiled tick's motion input (H, C, ekf_kernels.MOTION_*): one motion as it
-        comes (the kernel tests its validity), several composed by :meth:`_motion_measurement`."""
-        no_motion, with_h, with_cov = self._motion_codes
-        if len(motions) == 1 and self.params.camera:
-            m = motions[0].value
-            H = np.asarray(m.H, float)
-            if not m.valid or H.shape != (3, 3):
-                return self._no_h, self._no_cov, no_motion
-            if m.cov is None:
-                return H, self._no_cov, with_h
-            C = np.asarray(m.cov, float)
-            return (H, C, with_cov) if C.shape == (9, 9) else (self._no_h, self._no_cov, no_motion)
-        meas = self._motion_measurement(motions)
-        if meas is None:
-            return self._no_h, self._no_cov, no_motion
-        H, C = meas
-        return (H, self._no_cov, with_h) if C is None else (H, C, with_cov)
 
     def _tick_state(self, tick: _Tick) -> FilterState:
         x, P, gate = tick.before.x, tick.before.P, tick.before.gate
