@@ -17,6 +17,7 @@ from mata_eval.params import build_params
 from mata_eval.core.registry import load_registry
 from mata_eval_plugins.egomotion import homography_covariance as hc
 from mata_eval_plugins.egomotion.features import FeatureLK
+from mata_eval_plugins.egomotion import grid_lk
 from mata_eval_plugins.egomotion.grid_lk import GridLK
 from mata_eval_plugins.egomotion.identity import IdentityMotion
 
@@ -244,3 +245,26 @@ def test_real_uav_footage_warp_reduces_the_photometric_residual(shared_data: Pat
         mo = m.estimate(b)
         assert mo.valid and mo.inliers > 60 and 0.2 < mo.sigma < 3.0
         assert photometric_residual(a, b, mo.H) < 0.8 * photometric_residual(a, b, np.eye(3))
+
+
+@pytest.mark.parametrize("cls", [GridLK, FeatureLK])
+def test_a_repeated_picture_is_unchanged_a_moved_one_is_not(cls: type, ground: np.ndarray) -> None:
+    # A repeated frame comes back through a lossy codec: block B finds the same picture
+    # re-encoded as JPEG at quality 75 unchanged (on its grey images shrunk by 2), the picture
+    # moved by the camera (1 px) not. Nor a still scene in which a 16 px square of contrast 64
+    # moved 2 px: each of the two 16 px blocks its edges cross gains or loses a 2 x 16 px strip,
+    # 2 * 16 * 64 / 16^2 = 8 grey levels on average (UNCHANGED_GREY is 4).
+    jpeg75 = cv2.imdecode(cv2.imencode(".jpg", ground, [cv2.IMWRITE_JPEG_QUALITY, 75])[1], cv2.IMREAD_COLOR)
+    moved = warp(ground, np.array([[1.0, 0, 1.0], [0, 1, 0], [0, 0, 1]]))
+    m = cls()
+    m.initialize(ground)
+    assert m.estimate(jpeg75).unchanged and m.estimate(jpeg75).unchanged
+    assert not m.estimate(moved).unchanged
+    scene = np.full((384, 640), 100, np.uint8)   # 384 = 24 blocks of 16 px: block edges at 16 k
+    before, after = scene.copy(), scene.copy()
+    before[64:80, 64:80] = 164
+    after[64:80, 66:82] = 164
+    d = cv2.resize(cv2.absdiff(before, after).astype(np.float32), (40, 24), interpolation=cv2.INTER_AREA)
+    assert d[4, 4] == d[4, 5] == 8.0 and np.count_nonzero(d) == 2
+    assert not grid_lk.unchanged(before, after, grid_lk.UNCHANGED_CELL)
+    assert grid_lk.unchanged(before, before, grid_lk.UNCHANGED_CELL)

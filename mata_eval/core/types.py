@@ -139,13 +139,16 @@ class TrackerOutput:
 class Motion:
     """Block B's output: homography ``H`` mapping points of the previous processed frame into
     the current one (h33 = 1), its 9x9 covariance (row-major vec(H), h33 = 1 chart) or None,
-    the inlier count, the estimated point noise (px) and a validity flag."""
+    the inlier count, the estimated point noise (px) and a validity flag. ``unchanged``: the
+    current image is the previous one within compression noise (a repeated frame, e.g. a
+    clip padded to a higher frame rate), so nothing in the image moved over this interval."""
 
     H: np.ndarray
     cov: np.ndarray | None = None
     inliers: int = 0
     sigma: float | None = None
     valid: bool = True
+    unchanged: bool = False
 
     @classmethod
     def identity(cls, valid: bool = True) -> "Motion":

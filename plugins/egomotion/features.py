@@ -18,7 +18,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Motion
 
-from .grid_lk import prepare_gray, robust_fit, to_full_resolution
+from .grid_lk import flag_unchanged, prepare_gray, robust_fit, to_full_resolution
 
 
 class FeatureLK:
@@ -54,6 +54,7 @@ class FeatureLK:
     def __init__(self, params: Params | None = None):
         self.params = params if params is not None else self.Params()
         self._prev: np.ndarray | None = None
+        self._prev_plain: np.ndarray | None = None  # ``_prev`` without the intensity normalisation
         self._prev_corners: np.ndarray | None = None
         self._full_shape: tuple[int, ...] = ()
 
@@ -61,9 +62,9 @@ class FeatureLK:
         self._take(image)
 
     def estimate(self, image: np.ndarray) -> Motion:
-        """Motion from the previous image to this one; corners of this image are detected for the
-        next call."""
-        prev, corners, prev_full = self._prev, self._prev_corners, self._full_shape
+        """Motion from the previous image to this one (``unchanged`` when they show the same
+        picture: grid_lk.flag_unchanged); corners of this image are detected for the next call."""
+        prev, prev_plain, corners, prev_full = self._prev, self._prev_plain, self._prev_corners, self._full_shape
         cur = self._take(image)
         if (prev is None or cur is None or corners is None or prev.shape != cur.shape
                 or prev_full != self._full_shape):
@@ -75,9 +76,10 @@ class FeatureLK:
         finite = np.all(np.isfinite(dst), axis=1)
         scale = self._full_shape[1] / cur.shape[1]
         p = self.params
-        return robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold * scale, p.min_inliers,
-                          p.ransac_iters, p.ransac_confidence,
-                          image_size=(self._full_shape[1], self._full_shape[0]))
+        motion = robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold * scale, p.min_inliers,
+                            p.ransac_iters, p.ransac_confidence,
+                            image_size=(self._full_shape[1], self._full_shape[0]))
+        return flag_unchanged(motion, prev_plain, self._prev_plain, p.downscale)
 
     def _take(self, image: object) -> np.ndarray | None:
         p = self.params
@@ -87,6 +89,7 @@ class FeatureLK:
             corners = cv2.goodFeaturesToTrack(gray, p.max_corners, p.quality_level, p.min_distance,
                                               blockSize=p.block_size, useHarrisDetector=False, k=0.04)
         self._prev, self._prev_corners = gray, corners
+        self._prev_plain = prepare_gray(image, p.downscale) if p.normalise else gray
         self._full_shape = tuple(image.shape[:2]) if gray is not None else ()  # type: ignore[union-attr]
         return gray
 

@@ -5,6 +5,7 @@ the inliers, and the first-order covariance of the homography (H&Z Result 5.10).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -19,6 +20,12 @@ from . import homography_covariance as hc
 
 
 _TARGET_MEAN, _TARGET_STD, _MAX_GAIN = 128.0, 48.0, 4.0
+
+#: A frame repeats the previous picture when no UNCHANGED_CELL x UNCHANGED_CELL px block of the
+#: full image differs from it by more than UNCHANGED_GREY grey levels on average: above the block
+#: noise of re-encoding a frame as JPEG at quality 70-75 (up to 3.5) and of MountainBike6's
+#: repeated frames (3.1), below every new frame of aerial30 (5.8 and more; docs/mata.md)
+UNCHANGED_CELL, UNCHANGED_GREY = 16, 4.0
 
 
 def normalise_intensity(gray: np.ndarray) -> np.ndarray:
@@ -72,6 +79,26 @@ def to_full_resolution(pts: np.ndarray, small_shape: tuple[int, ...], full_shape
     out[:, 0] = sx * (out[:, 0] + 0.5) - 0.5
     out[:, 1] = sy * (out[:, 1] + 0.5) - 0.5
     return out
+
+
+def unchanged(prev: np.ndarray, cur: np.ndarray, cell: float) -> bool:
+    """Whether two grey images of one shape show the same picture within compression noise:
+    the mean absolute difference over every ``cell`` x ``cell`` block (area averages) is at most
+    UNCHANGED_GREY. Blocks, not the whole image, so that a target moving in a still scene
+    changes its block."""
+    h, w = cur.shape[:2]
+    size = (max(1, round(w / cell)), max(1, round(h / cell)))
+    d = cv2.resize(cv2.absdiff(prev, cur).astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    return bool(d.max() <= UNCHANGED_GREY)
+
+
+def flag_unchanged(motion: Motion, prev: np.ndarray, cur: np.ndarray, downscale: float) -> Motion:
+    """``motion`` with ``unchanged`` set when the grey images ``prev`` and ``cur`` (shrunk by
+    ``downscale``, before intensity normalisation, which would scale their noise) show the
+    same picture (:func:`unchanged`)."""
+    if unchanged(prev, cur, UNCHANGED_CELL / downscale):
+        return dataclasses.replace(motion, unchanged=True)
+    return motion
 
 
 def grid_points(width: int, height: int, cols: int, rows: int) -> np.ndarray:
@@ -191,6 +218,7 @@ class GridLK:
     def __init__(self, params: Params | None = None):
         self.params = params if params is not None else self.Params()
         self._prev: np.ndarray | None = None
+        self._prev_plain: np.ndarray | None = None  # ``_prev`` without the intensity normalisation
         self._full_shape: tuple[int, ...] = ()
         self._grid_cache: tuple[tuple[int, ...], np.ndarray] | None = None
 
@@ -198,8 +226,9 @@ class GridLK:
         self._take(image)
 
     def estimate(self, image: np.ndarray) -> Motion:
-        """Motion from the previous image to this one; this image becomes the previous one."""
-        prev, prev_full = self._prev, self._full_shape
+        """Motion from the previous image to this one (``unchanged`` when they show the same
+        picture: :func:`flag_unchanged`); this image becomes the previous one."""
+        prev, prev_plain, prev_full = self._prev, self._prev_plain, self._full_shape
         cur = self._take(image)
         if prev is None or cur is None or prev.shape != cur.shape or prev_full != self._full_shape:
             return Motion.invalid()
@@ -218,13 +247,15 @@ class GridLK:
         src = to_full_resolution(pts[good], cur.shape, self._full_shape)
         dst = to_full_resolution(nxt[good], cur.shape, self._full_shape)
         finite = np.all(np.isfinite(dst), axis=1)
-        return robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold, p.min_inliers,
-                          p.ransac_iters, p.ransac_confidence,
-                          image_size=(self._full_shape[1], self._full_shape[0]))
+        motion = robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold, p.min_inliers,
+                            p.ransac_iters, p.ransac_confidence,
+                            image_size=(self._full_shape[1], self._full_shape[0]))
+        return flag_unchanged(motion, prev_plain, self._prev_plain, p.downscale)
 
     def _take(self, image: object) -> np.ndarray | None:
         gray = prepare_gray(image, self.params.downscale, self.params.normalise)
         self._prev = gray
+        self._prev_plain = prepare_gray(image, self.params.downscale) if self.params.normalise else gray
         self._full_shape = tuple(image.shape[:2]) if gray is not None else ()  # type: ignore[union-attr]
         return gray
 

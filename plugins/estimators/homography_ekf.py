@@ -7,8 +7,8 @@ gate with absolute thresholds, corners through H, fixed R, delayed boxes applied
 rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
 confidence statistics that keeps following a tracker whose boxes agree with the prediction,
 innovation gating, R growing as confidence falls, corner process noise matched to the
-innovations). A parameter left unset takes its preset's value; any parameter set in YAML
-overrides the preset.
+innovations, no search centre handed over on a repeated picture). A parameter left unset
+takes its preset's value; any parameter set in YAML overrides the preset.
 
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
 interval ending at this tick updates the H state *before* the corners are propagated (the
@@ -40,7 +40,7 @@ BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for 
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
-#: feedback_hold trusts a box used at half the tracker's typical confidence or more: its R is at
+#: feedback_hold and repeat_hold trust a box used at half the tracker's typical confidence or more: its R is at
 #: most 4 times nominal (r_confidence), the level of the relative gate's drop test (tau_diff 0.5)
 HOLD_CONFIDENCE = 0.5
 
@@ -58,10 +58,12 @@ PAPER_BLOCK_C = "MATA, the paper's block C (preset paper)"
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
                   delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
-                  q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False),
+                  q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False,
+                  repeat_hold=False),
     "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=True,
                  delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
-                 q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True),
+                 q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True,
+                 repeat_hold=True),
 }
 
 
@@ -229,6 +231,11 @@ class HomographyEKF:
             "the previous tick, was used by the filter at a relative confidence of at least 0.5 "
             "(HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches there "
             "anyway); otherwise the estimate (paper L424; docs/mata.md)")
+        repeat_hold: bool | None = _preset_param(
+            "repeat_hold", "with feedback, on a frame that repeats the previous picture (block B's "
+            "Motion.unchanged), hand the tracker no search centre while its newest box is from the "
+            "previous tick and was used at a relative confidence of at least 0.5 (HOLD_CONFIDENCE): "
+            "it found that box on this same picture (docs/mata.md)")
         q_adapt: bool | None = _preset_param(
             "q_adapt", "the corners' process noise times the average (EWMA, alpha_ewma) of the "
             "used boxes' normalised innovation squared d2 / 4, each capped at chi2_gate / 4, when "
@@ -376,7 +383,8 @@ class HomographyEKF:
             self._replay(first)
         self._trim()
         est = self._estimate(self._ticks[-1].after)
-        if self.params.feedback_carry or self.params.feedback_shift or self.params.feedback_hold:
+        p = self.params
+        if p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold:
             self._note_newest_box(detections)
             est = self._with_feedback(est)
         return est
@@ -621,7 +629,7 @@ class HomographyEKF:
     def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
         and, when the filter used it, the posterior centre of its tick (for ``feedback_carry``),
-        and whether the box's relative confidence reached HOLD_CONFIDENCE (for ``feedback_hold``)."""
+        and whether the box's relative confidence reached HOLD_CONFIDENCE (for ``feedback_hold``, ``repeat_hold``)."""
         for det in detections:
             if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
                 self._newest, self._newest_fit, self._newest_trusted = det, None, False
@@ -641,7 +649,10 @@ class HomographyEKF:
         back when that centre lies within f of the newest box (its width in x, height in y),
         where the tracker searches anyway. ``feedback_hold``: the same with f = 0.5, only while
         that box is fresh (captured at the previous tick) and was used at a relative confidence
-        of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate."""
+        of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``:
+        nothing is fed back on a repeated picture while that box is fresh and trusted."""
+        if self.params.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
+            return dataclasses.replace(est, feedback=False)
         b = self._newest.value.box
         if self.params.feedback_carry and self._newest_fit is not None:
             fx, fy = self._newest_fit
@@ -654,12 +665,23 @@ class HomographyEKF:
         return est if _shift(est.prior, b) > f else dataclasses.replace(est, feedback=False)
 
     def _holds(self, est: Estimate, b: Box) -> bool:
-        """``feedback_hold``: the tracker's newest box ``b`` was captured at the previous tick or
-        later, the filter used it at a relative confidence of at least HOLD_CONFIDENCE, and it
-        contains the search centre offered."""
-        if not self._newest_trusted or est.prior is None or self._newest.t_capture < self._previous_t - EPS_T:
-            return False
-        return _shift(est.prior, b) <= 0.5
+        """``feedback_hold``: the tracker's newest box ``b`` is fresh and trusted and contains
+        the search centre offered."""
+        return self._fresh_and_trusted() and est.prior is not None and _shift(est.prior, b) <= 0.5
+
+    def _fresh_and_trusted(self) -> bool:
+        """The tracker's newest box was captured at the previous tick or later, and the filter
+        used it at a relative confidence of at least HOLD_CONFIDENCE."""
+        return self._newest_trusted and self._newest.t_capture >= self._previous_t - EPS_T
+
+    def _repeated_picture(self) -> bool:
+        """``repeat_hold``: block B found the newest tick's frame to repeat the previous picture
+        (``Motion.unchanged``, e.g. a clip padded to a higher frame rate). Nothing in it moved,
+        so the tracker's box from the previous frame was found on this very picture and no
+        prediction can improve on it; the filter may still predict motion over the frame (its
+        constant velocity spreads the motion of the new pictures over every frame)."""
+        motions = self._ticks[-1].motions
+        return bool(motions) and all(m.value.unchanged for m in motions)
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
