@@ -136,6 +136,10 @@ class PackedState(NamedTuple):
     def ewma(self) -> float | None:
         return self.gate.ewma
 
+    @property
+    def n_used(self) -> int:
+        return int(self.g[G_N_USED])
+
 
 def _njit(fn):
     """numba.njit with IEEE semantics (no fastmath; x / 0 gives inf or nan, as numpy does) and

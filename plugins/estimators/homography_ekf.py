@@ -136,6 +136,10 @@ class FilterState(NamedTuple):
     def ewma(self) -> float | None:
         return self.gate.ewma
 
+    @property
+    def n_used(self) -> int:
+        return self.gate.n_used
+
 
 class _Tick:
     """One estimator tick: its time, dt since the previous one, the states before and after,
@@ -337,8 +341,9 @@ class HomographyEKF:
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
-        self._newest_fit: tuple[float, float] | None = None  # the posterior centre where the filter used it
-        self._newest_trusted = False  # used at a relative confidence >= HOLD_CONFIDENCE
+        # the states before and after the tick where the filter used the tracker's newest box (None:
+        # not used); what feedback_carry and the holds need is read from them when they ask
+        self._newest_use: tuple[FilterState, FilterState] | None = None
         self._previous_t = -math.inf  # the time of the tick before the newest
 
     # --- interface ---------------------------------------------------------------------------
@@ -352,7 +357,7 @@ class HomographyEKF:
         start = self._state(x, self._p0.copy(), self._gate0)
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
-        self._newest_fit, self._newest_trusted, self._previous_t = None, False, -math.inf
+        self._newest_use, self._previous_t = None, -math.inf
         return self._estimate(start)
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
@@ -628,17 +633,30 @@ class HomographyEKF:
 
     def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
-        and, when the filter used it, the posterior centre of its tick (for ``feedback_carry``),
-        and whether the box's relative confidence reached HOLD_CONFIDENCE (for ``feedback_hold``, ``repeat_hold``)."""
+        and, when the filter used it, the states before and after its tick: the posterior centre
+        there (for ``feedback_carry``) and the box's relative confidence (for ``feedback_hold``,
+        ``repeat_hold``) are read from them when asked (most ticks ask for neither)."""
         for det in detections:
             if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
-                self._newest, self._newest_fit, self._newest_trusted = det, None, False
-                tick = next((k for k in reversed(self._ticks) if any(d is det for d in k.detections)), None)
-                if tick is not None and tick.after.gate.n_used > tick.before.gate.n_used:
-                    x1, y1, x2, y2 = tick.after.x[em.CORNERS]
-                    self._newest_fit = (0.5 * (x1 + x2), 0.5 * (y1 + y2))
-                    self._newest_trusted = relative_confidence(
-                        tick.before.gate.ranked, float(det.value.confidence), ranked=True) >= HOLD_CONFIDENCE
+                self._newest, self._newest_use = det, None
+                tick = self._tick_of(det)
+                if tick is not None and tick.after.n_used > tick.before.n_used:
+                    self._newest_use = tick.before, tick.after
+
+    def _tick_of(self, det: Stamped[TrackerOutput]) -> _Tick | None:
+        """The kept tick that holds this detection (the newest first)."""
+        for tick in reversed(self._ticks):
+            for d in tick.detections:
+                if d is det:
+                    return tick
+        return None
+
+    def _newest_fit(self) -> tuple[float, float] | None:
+        """The posterior centre of the tick where the filter used the tracker's newest box."""
+        if self._newest_use is None:
+            return None
+        x1, y1, x2, y2 = self._newest_use[1].x[em.CORNERS]
+        return 0.5 * (x1 + x2), 0.5 * (y1 + y2)
 
     def _with_feedback(self, est: Estimate) -> Estimate:
         """What is fed back to the tracker (beyond the paper, whose L424 feeds every estimate's
@@ -654,8 +672,8 @@ class HomographyEKF:
         if self.params.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
             return dataclasses.replace(est, feedback=False)
         b = self._newest.value.box
-        if self.params.feedback_carry and self._newest_fit is not None:
-            fx, fy = self._newest_fit
+        if self.params.feedback_carry and (fit := self._newest_fit()) is not None:
+            fx, fy = fit
             est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
         if self.params.feedback_hold and self._holds(est, b):
             return dataclasses.replace(est, feedback=False)
@@ -672,7 +690,11 @@ class HomographyEKF:
     def _fresh_and_trusted(self) -> bool:
         """The tracker's newest box was captured at the previous tick or later, and the filter
         used it at a relative confidence of at least HOLD_CONFIDENCE."""
-        return self._newest_trusted and self._newest.t_capture >= self._previous_t - EPS_T
+        if self._newest_use is None or self._newest.t_capture < self._previous_t - EPS_T:
+            return False
+        before = self._newest_use[0]
+        return relative_confidence(before.gate.ranked, float(self._newest.value.confidence),
+                                   ranked=True) >= HOLD_CONFIDENCE
 
     def _repeated_picture(self) -> bool:
         """``repeat_hold``: block B found the newest tick's frame to repeat the previous picture
@@ -681,7 +703,10 @@ class HomographyEKF:
         prediction can improve on it; the filter may still predict motion over the frame (its
         constant velocity spreads the motion of the new pictures over every frame)."""
         motions = self._ticks[-1].motions
-        return bool(motions) and all(m.value.unchanged for m in motions)
+        for m in motions:   # all(...) without a generator: asked on every tick
+            if not m.value.unchanged:
+                return False
+        return bool(motions)
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
