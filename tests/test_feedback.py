@@ -58,8 +58,8 @@ class RecordingTracker:
         return TrackerOutput(BOX, confidence=0.9)
 
 
-def toy_sequence(n):
-    return Sequence("toy", np.tile(BOX.as_array(), (n, 1)), fps=FPS,
+def toy_sequence(n, fps=FPS):
+    return Sequence("toy", np.tile(BOX.as_array(), (n, 1)), fps=fps,
                     loader=lambda k: np.full((480, 640, 3), k, np.uint8))
 
 
@@ -105,12 +105,12 @@ class WorldStillTracker(RecordingTracker):
 PAN = {4: 15.0, 6: 15.0, 7: 5.0}  # camera pans (px) before frames 4, 6 and 7
 
 
-def pan_calls(**params) -> list:
-    """The tracker's (frame, prior) calls on the LTP pan timeline (PAN, 8 frames, a target still
-    in the world) with block C's paper preset and ``params``."""
+def pan_calls(fps=FPS, **params) -> list:
+    """The tracker's (frame, prior) calls on the LTP pan timeline (PAN, 8 frames at ``fps``, a
+    target still in the world) with block C's paper preset and ``params``."""
     tracker = WorldStillTracker(PAN)
     est = HomographyEKF(HomographyEKF.Params(preset="paper", **params))
-    run_sequence(toy_sequence(8), tracker, PanEgoMotion(PAN), est, LTP(), np.random.default_rng(0))
+    run_sequence(toy_sequence(8, fps), tracker, PanEgoMotion(PAN), est, LTP(), np.random.default_rng(0))
     return tracker.calls
 
 
@@ -161,7 +161,8 @@ def test_carry_hands_the_trackers_box_moved_by_the_camera_not_the_smoothed_estim
     for carry in (False, True):
         tracker = WorldStillTracker(pan)
         still = {} if preset == "paper" else dict(follow_prior=0.0, velocity_decay_s=0.0)
-        est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry, **still))
+        est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry,
+                                                 feedback_hold=False, **still))
         run_sequence(seq, tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
         errors[carry] = [p[0] - (100.0 + 15.0 * k) for k, p in tracker.calls]
         assert all(abs(p[1] - 100.0) < 0.5 for _, p in tracker.calls)
@@ -175,21 +176,24 @@ def test_carry_only_a_box_the_filter_used():
     # a box the gate rejects (confidence 0: "found nothing") is not carried: the estimate is.
     far = Box(BOX.x + 40.0, BOX.y, BOX.w, BOX.h)
     for confidence, search in ((0.9, far.center), (0.0, None)):
-        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True))
+        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True, feedback_hold=False))
         est.initialize(BOX, 0.0)
         out = est.step(0.1, (), [Stamped(TrackerOutput(far, confidence), 0.1, 0.1)])
         assert out.search == (pytest.approx(search) if search else None)
         assert out.prior == pytest.approx(search or out.box.center)
 
 
-@pytest.mark.parametrize("hold, fed", [(False, [1, 2, 3, 4, 5, 6, 7]), (True, [1, 4, 6])])
-def test_hold_keeps_the_trackers_own_search_while_its_fresh_box_contains_the_estimate(hold, fed):
+@pytest.mark.parametrize("hold, fps, fed", [(False, 30.0, [1, 2, 3, 4, 5, 6, 7]), (True, 30.0, [1, 4, 6]),
+                                            (True, 20.0, [1, 4, 6]), (True, 10.0, [1, 2, 3, 4, 5, 6, 7])])
+def test_hold_keeps_the_trackers_own_search_while_its_fresh_box_contains_the_estimate(hold, fps, fed):
     # The pan timeline above (15 px = 0.75 box before frames 4 and 6, 5 px before 7), LTP: from
     # frame 2 on the tracker's newest box is from the previous frame and confident, and the
     # estimate of frame k is that box moved by the pan; only the 15 px pans put it outside the
     # box, so with feedback_hold frames 2, 3, 5 and 7 search at their own box, as alone (frame
     # 1 has only the initial box, which the filter did not use: the estimate is handed over).
-    assert [k for k, p in pan_calls(feedback_hold=hold) if p is not None] == fed
+    # Fresh is at most HOLD_AGE_S = 0.05 s old: the previous frame at 30 or 20 fps, not at 10
+    # fps, where every estimate is handed over.
+    assert [k for k, p in pan_calls(fps, feedback_hold=hold) if p is not None] == fed
 
 
 @pytest.mark.parametrize("preset", ["paper", "mata"])
@@ -270,7 +274,7 @@ def test_repeat_hold_keeps_the_trackers_own_search_on_a_repeated_picture(backend
     if backend == "numba":
         pytest.importorskip("numba")
     tracker = PictureTracker(doubtful)
-    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold), backend=backend)
+    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold, feedback_hold=False), backend=backend)
     run_sequence(toy_sequence(len(PICTURE)), tracker, RepeatEgoMotion(), est, LTP(), np.random.default_rng(0))
     assert [k for k, p in tracker.calls if p is None] == withheld
     assert est.state.gate.n_used == len(PICTURE) - 1  # every box used, the doubtful one too

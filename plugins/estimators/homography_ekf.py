@@ -7,8 +7,9 @@ gate with absolute thresholds, corners through H, fixed R, delayed boxes applied
 rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
 confidence statistics that keeps following a tracker whose boxes agree with the prediction,
 innovation gating, R growing as confidence falls, corner process noise matched to the
-innovations, no search centre handed over on a repeated picture). A parameter left unset
-takes its preset's value; any parameter set in YAML overrides the preset.
+innovations, no search centre handed over where the tracker's own fresh, trusted box already
+contains the estimate or the picture repeats). A parameter left unset takes its preset's
+value; any parameter set in YAML overrides the preset.
 
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
 interval ending at this tick updates the H state *before* the corners are propagated (the
@@ -43,6 +44,11 @@ CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's medi
 #: feedback_hold and repeat_hold trust a box used at half the tracker's typical confidence or more: its R is at
 #: most 4 times nominal (r_confidence), the level of the relative gate's drop test (tau_diff 0.5)
 HOLD_CONFIDENCE = 0.5
+#: feedback_hold holds a box at most this old (seconds; docs/mata.md): on the 30 fps tuning footage
+#: every LTP box is 1/30 s old when the tracker next starts, every EOP box 0.1 s or more, and
+#: holding a 0.1 s old box lost MountainBike6 at EOP, so any bound in [1/30, 0.1) gives the same
+#: tuning result; 0.05 s, the frame period of 20 fps video, lies inside
+HOLD_AGE_S = 0.05
 
 # Defaults for the homography entries (row-major h11..h33; units 1, 1, px, 1, 1, px, 1/px, 1/px, 1).
 _Q_H = [3e-3, 3e-3, 3e2, 3e-3, 3e-3, 3e2, 3e-9, 3e-9, 3e-9]
@@ -59,11 +65,11 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
                   delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
                   q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False,
-                  repeat_hold=False),
+                  feedback_hold=False, repeat_hold=False),
     "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=True,
                  delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
                  q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True,
-                 repeat_hold=True),
+                 feedback_hold=True, repeat_hold=True),
 }
 
 
@@ -230,11 +236,11 @@ class HomographyEKF:
             False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
             "that box moved by the filter's predicted motion since its capture instead of the "
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
-        feedback_hold: bool = param(
-            False, "with feedback, hand the tracker no search centre while its newest box is from "
-            "the previous tick, was used by the filter at a relative confidence of at least 0.5 "
-            "(HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches there "
-            "anyway); otherwise the estimate (paper L424; docs/mata.md)")
+        feedback_hold: bool | None = _preset_param(
+            "feedback_hold", "with feedback, hand the tracker no search centre while its newest box "
+            "is at most 0.05 s old (HOLD_AGE_S), was used by the filter at a relative confidence of "
+            "at least 0.5 (HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches "
+            "there anyway); otherwise the estimate (paper L424; docs/mata.md)")
         repeat_hold: bool | None = _preset_param(
             "repeat_hold", "with feedback, on a frame that repeats the previous picture (block B's "
             "Motion.unchanged), hand the tracker no search centre while its newest box is from the "
@@ -666,7 +672,7 @@ class HomographyEKF:
         also carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed
         back when that centre lies within f of the newest box (its width in x, height in y),
         where the tracker searches anyway. ``feedback_hold``: the same with f = 0.5, only while
-        that box is fresh (captured at the previous tick) and was used at a relative confidence
+        that box is at most HOLD_AGE_S old and was used at a relative confidence
         of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``:
         nothing is fed back on a repeated picture while that box is fresh and trusted."""
         if self.params.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
@@ -683,14 +689,21 @@ class HomographyEKF:
         return est if _shift(est.prior, b) > f else dataclasses.replace(est, feedback=False)
 
     def _holds(self, est: Estimate, b: Box) -> bool:
-        """``feedback_hold``: the tracker's newest box ``b`` is fresh and trusted and contains
-        the search centre offered."""
-        return self._fresh_and_trusted() and est.prior is not None and _shift(est.prior, b) <= 0.5
+        """``feedback_hold``: the tracker's newest box ``b`` is at most HOLD_AGE_S old, contains
+        the search centre offered, and is trusted."""
+        if self._ticks[-1].t - self._newest.t_capture > HOLD_AGE_S + EPS_T or est.prior is None:
+            return False
+        return _shift(est.prior, b) <= 0.5 and self._trusted()
 
     def _fresh_and_trusted(self) -> bool:
-        """The tracker's newest box was captured at the previous tick or later, and the filter
-        used it at a relative confidence of at least HOLD_CONFIDENCE."""
-        if self._newest_use is None or self._newest.t_capture < self._previous_t - EPS_T:
+        """``repeat_hold``: the tracker's newest box was captured at the previous tick or later
+        (on the picture repeated now), and is trusted."""
+        return self._newest.t_capture >= self._previous_t - EPS_T and self._trusted()
+
+    def _trusted(self) -> bool:
+        """The filter used the tracker's newest box at a relative confidence of at least
+        HOLD_CONFIDENCE."""
+        if self._newest_use is None:
             return False
         before = self._newest_use[0]
         return relative_confidence(before.gate.ranked, float(self._newest.value.confidence),
