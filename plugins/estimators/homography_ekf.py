@@ -347,9 +347,10 @@ class HomographyEKF:
             self._no_h = np.zeros((3, 3))
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
-        # the states before and after the tick where the filter used the tracker's newest box (None:
-        # not used); what feedback_carry and the holds need is read from them when they ask
-        self._newest_use: tuple[FilterState, FilterState] | None = None
+        # the states before and after the tick of the tracker's newest box (None: not kept); whether
+        # the filter used the box, and what feedback_carry and the holds need, are read from them
+        # when asked
+        self._newest_tick: tuple[FilterState, FilterState] | None = None
         self._previous_t = -math.inf  # the time of the tick before the newest
 
     # --- interface ---------------------------------------------------------------------------
@@ -363,7 +364,7 @@ class HomographyEKF:
         start = self._state(x, self._p0.copy(), self._gate0)
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
-        self._newest_use, self._previous_t = None, -math.inf
+        self._newest_tick, self._previous_t = None, -math.inf
         return self._estimate(start)
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
@@ -639,15 +640,14 @@ class HomographyEKF:
 
     def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
-        and, when the filter used it, the states before and after its tick: the posterior centre
-        there (for ``feedback_carry``) and the box's relative confidence (for ``feedback_hold``,
-        ``repeat_hold``) are read from them when asked (most ticks ask for neither)."""
+        and the states before and after its tick as they are now (a later replay replaces the
+        tick's states, not these): whether the filter used the box, the posterior centre there
+        (for ``feedback_carry``) and the box's relative confidence (for ``feedback_hold``,
+        ``repeat_hold``) are read from them when asked (most ticks ask for none)."""
         for det in detections:
             if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
-                self._newest, self._newest_use = det, None
                 tick = self._tick_of(det)
-                if tick is not None and tick.after.n_used > tick.before.n_used:
-                    self._newest_use = tick.before, tick.after
+                self._newest, self._newest_tick = det, None if tick is None else (tick.before, tick.after)
 
     def _tick_of(self, det: Stamped[TrackerOutput]) -> _Tick | None:
         """The kept tick that holds this detection (the newest first)."""
@@ -657,11 +657,18 @@ class HomographyEKF:
                     return tick
         return None
 
+    def _newest_use(self) -> tuple[FilterState, FilterState] | None:
+        """The states before and after the tick where the filter used the tracker's newest box,
+        or None when it did not use it."""
+        states = self._newest_tick
+        return states if states is not None and states[1].n_used > states[0].n_used else None
+
     def _newest_fit(self) -> tuple[float, float] | None:
         """The posterior centre of the tick where the filter used the tracker's newest box."""
-        if self._newest_use is None:
+        use = self._newest_use()
+        if use is None:
             return None
-        x1, y1, x2, y2 = self._newest_use[1].x[em.CORNERS]
+        x1, y1, x2, y2 = use[1].x[em.CORNERS]
         return 0.5 * (x1 + x2), 0.5 * (y1 + y2)
 
     def _with_feedback(self, est: Estimate) -> Estimate:
@@ -703,9 +710,9 @@ class HomographyEKF:
     def _trusted(self) -> bool:
         """The filter used the tracker's newest box at a relative confidence of at least
         HOLD_CONFIDENCE."""
-        if self._newest_use is None:
+        if (use := self._newest_use()) is None:
             return False
-        before = self._newest_use[0]
+        before = use[0]
         return relative_confidence(before.gate.ranked, float(self._newest.value.confidence),
                                    ranked=True) >= HOLD_CONFIDENCE
 
