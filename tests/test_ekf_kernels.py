@@ -220,3 +220,22 @@ def test_without_a_writable_cache_directory_the_kernel_compiles_quietly(monkeypa
     assert add(1.0) == 2.0
     assert isinstance(add._cache, caching.NullCache)
     assert not [w for w in recwarn if "cache" in str(w.message).lower()]
+
+
+@pytest.mark.parametrize("history", [(), (0.5,), (0.2, 0.6), (0.0, 0.0, 0.4), (0.1, 0.3, 0.7, 0.9),
+                                     (0.3, float("nan"), 0.8), tuple(np.linspace(0.05, 1.0, CONFIDENCE_HISTORY))])
+def test_the_packed_gate_reads_a_relative_confidence_as_the_python_gate(history):
+    """PackedGate.relative (the compiled twin on the packed history, used by the holds) equals
+    relative_confidence on the GateState with the same ranked history, NaN medians included."""
+    from mata_eval_plugins.estimators.homography_ekf import GateState, relative_confidence
+
+    ranked = tuple(sorted(history, key=lambda v: (v != v, v)))   # NaN last, as a sorted history can hold
+    g = ekf_kernels.new_gate(CONFIDENCE_HISTORY)
+    m = (len(g) - ekf_kernels.G_ACCEPTED) // 2
+    g[ekf_kernels.G_N_ACC] = len(ranked)
+    g[ekf_kernels.G_ACCEPTED + m:ekf_kernels.G_ACCEPTED + m + len(ranked)] = ranked
+    packed, plain = ekf_kernels.PackedGate(g), GateState(ranked=ranked)
+    for c in (0.0, -0.1, 0.05, 0.3, 0.45, 0.9, 1.0, 2.0, float("nan"), float("inf")):
+        want = relative_confidence(ranked, c, ranked=True)
+        for got in (packed.relative(c), plain.relative(c)):
+            assert np.array_equal(got, want, equal_nan=True), (history, c, got, want)

@@ -99,7 +99,7 @@ class PackedGate(NamedTuple):
 
     @property
     def n_used(self) -> int:
-        return int(self.g[G_N_USED])
+        return int(self.g.item(G_N_USED))
 
     @property
     def nis(self) -> float:
@@ -117,6 +117,12 @@ class PackedGate(NamedTuple):
     def ranked(self) -> tuple[float, ...]:
         start = G_ACCEPTED + (len(self.g) - G_ACCEPTED) // 2
         return tuple(self.g[start:start + int(self.g[G_N_ACC])].tolist())
+
+    def relative(self, confidence: float) -> float:
+        """GateState.relative: its compiled twin on the packed history (without building
+        ``ranked``, a tuple of up to 100 floats)."""
+        start = G_ACCEPTED + (len(self.g) - G_ACCEPTED) // 2
+        return _relative_confidence(self.g[start:], int(self.g[G_N_ACC]), float(confidence))
 
 
 class PackedState(NamedTuple):
@@ -138,7 +144,7 @@ class PackedState(NamedTuple):
 
     @property
     def n_used(self) -> int:
-        return int(self.g[G_N_USED])
+        return int(self.g.item(G_N_USED))
 
 
 def _njit(fn):

@@ -129,6 +129,10 @@ class GateState(NamedTuple):
     nis: float = 1.0  # q_adapt: average normalised innovation squared of the used boxes
     following: bool = False  # the filter used the tracker's previous box (``follow_consistent``)
 
+    def relative(self, confidence: float) -> float:
+        """:func:`relative_confidence` of a confidence against the accepted ones."""
+        return relative_confidence(self.ranked, confidence, ranked=True)
+
 
 class FilterState(NamedTuple):
     """Everything a tick changes: state, covariance and the gate's memory. The compiled path
@@ -683,17 +687,17 @@ class HomographyEKF:
         of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``:
         nothing is fed back on a repeated picture while that box is fresh and trusted."""
         if self.params.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
-            return dataclasses.replace(est, feedback=False)
+            return _withheld(est)
         b = self._newest.value.box
         if self.params.feedback_carry and (fit := self._newest_fit()) is not None:
             fx, fy = fit
             est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
         if self.params.feedback_hold and self._holds(est, b):
-            return dataclasses.replace(est, feedback=False)
+            return _withheld(est)
         f = self.params.feedback_shift
         if not f:
             return est
-        return est if _shift(est.prior, b) > f else dataclasses.replace(est, feedback=False)
+        return est if _shift(est.prior, b) > f else _withheld(est)
 
     def _holds(self, est: Estimate, b: Box) -> bool:
         """``feedback_hold``: the tracker's newest box ``b`` is at most HOLD_AGE_S old, contains
@@ -713,8 +717,7 @@ class HomographyEKF:
         if (use := self._newest_use()) is None:
             return False
         before = use[0]
-        return relative_confidence(before.gate.ranked, float(self._newest.value.confidence),
-                                   ranked=True) >= HOLD_CONFIDENCE
+        return before.gate.relative(float(self._newest.value.confidence)) >= HOLD_CONFIDENCE
 
     def _repeated_picture(self) -> bool:
         """``repeat_hold``: block B found the newest tick's frame to repeat the previous picture
@@ -735,6 +738,12 @@ class HomographyEKF:
         w, h = x2 - x1, y2 - y1
         w, h = (1.0 if w < 1.0 else w), (1.0 if h < 1.0 else h)   # max(w, 1.0), without a call
         return Estimate(Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h), s.P.copy())
+
+
+def _withheld(est: Estimate) -> Estimate:
+    """``est`` with no search centre fed back: ``dataclasses.replace(est, feedback=False)`` at half
+    its cost (asked on most ticks with the holds on; tests/test_feedback.py checks they agree)."""
+    return Estimate(est.box, est.cov, False, est.search)
 
 
 def _shift(centre: tuple[float, float], b: Box) -> float:
