@@ -1,13 +1,14 @@
 """Block C's whole tick against filterpy doing the same algebra, measured in the same run.
 
     OMP_NUM_THREADS=1 python benchmarks/ekf_tick.py [--n 1000] [--repeat 7] [--preset mata|paper]
-        [--backend numba|numpy]
+        [--backend numba|numpy] [--param KEY=VALUE]...
 
 - ours: one ``HomographyEKF.step()`` with one motion (9-value homography update, gated) and one
   detection (4 corners, EWMA gate), 15 states, constant velocity: the tick's bookkeeping, the
   transition with its Jacobian, both updates, the Estimate it returns. The inputs (Stamped
   Motion and TrackerOutput) are built before the clock starts, as filterpy's are;
   ``--backend`` (default numba when installed): the compiled tick or the numpy reference;
+  ``--param``: a homography_ekf parameter (value in YAML), e.g. ``--param feedback_hold=false``;
 - anchor: filterpy's ``KalmanFilter`` on the same 15 states: ``predict()`` with the same F and Q,
   then ``update()`` with a 9-value and a 4-value measurement (selector H), i.e. the algebra alone.
 Prints microseconds per tick (min and median over ``repeat`` runs of ``n`` ticks, one thread) and
@@ -17,11 +18,13 @@ the ratio filterpy / ours (issue 18 target: >= 3 and a tick <= 20 us).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import sys
 import time
 
 import numpy as np
+import yaml
 from filterpy.kalman import KalmanFilter
 
 from mata_eval.types import Box, Motion, Stamped, TrackerOutput
@@ -49,10 +52,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--preset", choices=("mata", "paper"), default=None, help="block C preset (default: the plugin's)")
     ap.add_argument("--backend", choices=("numba", "numpy"), default=None,
                     help="block C backend (default: numba when installed, else numpy)")
+    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="a homography_ekf parameter (repeatable; value in YAML)")
     args = ap.parse_args(argv)
     backend = args.backend or ("numba" if importlib.util.find_spec("numba") else "numpy")
-
-    est = HomographyEKF(HomographyEKF.Params(preset=args.preset) if args.preset else None, backend=backend)
+    params = {} if args.preset is None else {"preset": args.preset}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not (sep and key in {f.name for f in dataclasses.fields(HomographyEKF.Params)}):
+            ap.error(f"--param {item!r}: expected KEY=VALUE with a homography_ekf parameter as KEY")
+        params[key] = yaml.safe_load(value)
+    try:
+        est = HomographyEKF(HomographyEKF.Params(**params), backend=backend)
+    except (TypeError, ValueError) as exc:
+        ap.error(f"--param: {exc}")
     est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)
     clock = [0]
 
@@ -96,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         ours_us += per_tick_us(ours, args.n, 1)
         ref_us += per_tick_us(filterpy, args.n, 1)
     ratio = np.array(ref_us) / np.array(ours_us)
-    print(f"15 states, preset {est.params.preset}, backend {backend}, {args.n} ticks x {args.repeat} runs, "
+    print(f"15 states, preset {est.params.preset}{''.join(f', {p}' for p in args.param)}, backend {backend}, "
+          f"{args.n} ticks x {args.repeat} runs, "
           f"CPU time, one thread; first step() {first_call_s * 1e3:.0f} ms (numba: cache load or compile)")
     print(f"  filterpy predict + 9-value + 4-value update (anchor)  us  min {min(ref_us):7.1f}  median {np.median(ref_us):7.1f}")
     print(f"  HomographyEKF.step(), one motion + one detection      us  min {min(ours_us):7.1f}  median {np.median(ours_us):7.1f}")
