@@ -174,8 +174,7 @@ def test_carry_hands_the_trackers_box_moved_by_the_camera_not_the_smoothed_estim
     for carry in (False, True):
         tracker = WorldStillTracker(pan)
         still = {} if preset == "paper" else dict(follow_prior=0.0, velocity_decay_s=0.0)
-        est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry,
-                                                 feedback_hold=False, **still))
+        est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry, **still))
         run_sequence(seq, tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
         errors[carry] = [p[0] - (100.0 + 15.0 * k) for k, p in tracker.calls]
         assert all(abs(p[1] - 100.0) < 0.5 for _, p in tracker.calls)
@@ -189,7 +188,7 @@ def test_carry_only_a_box_the_filter_used():
     # a box the gate rejects (confidence 0: "found nothing") is not carried: the estimate is.
     far = Box(BOX.x + 40.0, BOX.y, BOX.w, BOX.h)
     for confidence, search in ((0.9, far.center), (0.0, None)):
-        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True, feedback_hold=False))
+        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True))
         est.initialize(BOX, 0.0)
         out = est.step(0.1, (), [Stamped(TrackerOutput(far, confidence), 0.1, 0.1)])
         assert out.search == (pytest.approx(search) if search else None)
@@ -287,7 +286,7 @@ def test_repeat_hold_keeps_the_trackers_own_search_on_a_repeated_picture(backend
     if backend == "numba":
         pytest.importorskip("numba")
     tracker = PictureTracker(doubtful)
-    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold, feedback_hold=False), backend=backend)
+    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold), backend=backend)
     run_sequence(toy_sequence(len(PICTURE)), tracker, RepeatEgoMotion(), est, LTP(), np.random.default_rng(0))
     assert [k for k, p in tracker.calls if p is None] == withheld
     assert est.state.gate.n_used == len(PICTURE) - 1  # every box used, the doubtful one too

@@ -7,9 +7,8 @@ gate with absolute thresholds, corners through H, fixed R, delayed boxes applied
 rotation-safe propagation, noise scaled with the target, a gate relative to the tracker's own
 confidence statistics that keeps following a tracker whose boxes agree with the prediction,
 innovation gating, R growing as confidence falls, corner process noise matched to the
-innovations, no search centre handed over where the tracker's own fresh, trusted box already
-contains the estimate or the picture repeats). A parameter left unset takes its preset's
-value; any parameter set in YAML overrides the preset.
+innovations, no search centre handed over on a repeated picture). A parameter left unset
+takes its preset's value; any parameter set in YAML overrides the preset.
 
 Decisions (see docs/decisions/estimator.md): within a tick the homography measured for the
 interval ending at this tick updates the H state *before* the corners are propagated (the
@@ -65,11 +64,11 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
                   delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
                   q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False,
-                  feedback_hold=False, repeat_hold=False),
+                  repeat_hold=False),
     "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=True,
                  delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
                  q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True,
-                 feedback_hold=True, repeat_hold=True),
+                 repeat_hold=True),
 }
 
 
@@ -240,11 +239,11 @@ class HomographyEKF:
             False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
             "that box moved by the filter's predicted motion since its capture instead of the "
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
-        feedback_hold: bool | None = _preset_param(
-            "feedback_hold", "with feedback, hand the tracker no search centre while its newest box "
-            "is at most 0.05 s old (HOLD_AGE_S), was used by the filter at a relative confidence of "
-            "at least 0.5 (HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches "
-            "there anyway); otherwise the estimate (paper L424; docs/mata.md)")
+        feedback_hold: bool = param(
+            False, "with feedback, hand the tracker no search centre while its newest box is at most "
+            "0.05 s old (HOLD_AGE_S), was used by the filter at a relative confidence of at least 0.5 "
+            "(HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches there "
+            "anyway); otherwise the estimate (paper L424; docs/mata.md)")
         repeat_hold: bool | None = _preset_param(
             "repeat_hold", "with feedback, on a frame that repeats the previous picture (block B's "
             "Motion.unchanged), hand the tracker no search centre while its newest box is from the "
