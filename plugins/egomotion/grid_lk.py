@@ -1,8 +1,8 @@
 """MATA block B (paper section 2.2): points on a regular grid tracked by pyramidal Lucas-Kanade
 from frame k-1 to frame k, low-contrast points dropped (minimum eigenvalue of the LK gradient
-matrix), an optional forward-backward check, RANSAC with its fit on the inliers (one homography
-fit per frame: OpenCV's own DLT + Levenberg-Marquardt on them; a linear least-squares fit for the
-other models), and the first-order covariance of the homography (H&Z Result 5.10)."""
+matrix), an optional forward-backward check, RANSAC for the inlier set, a least-squares refit on
+the inliers (optional for the homography: ``refit``), and the first-order covariance of the
+homography (H&Z Result 5.10)."""
 
 from __future__ import annotations
 
@@ -133,16 +133,15 @@ def _ransac(src: np.ndarray, dst: np.ndarray, model: str, threshold: float, max_
 
 def robust_fit(src: np.ndarray, dst: np.ndarray, model: str = "homography", threshold: float = 3.0,
                min_inliers: int = 20, max_iters: int = 2000, confidence: float = 0.995,
-               image_size: tuple[int, int] | None = None) -> Motion:
-    """RANSAC's inlier set and fit, residual noise and covariance. ``src`` are exact points,
-    ``dst`` their tracked positions (pixels). One homography fit per frame, RANSAC's own
-    (:func:`_ransac`): the reference notes (section 4.3) advise a second least-squares fit on
-    its inliers, having measured RANSAC's output at 1.4-2.1x the analytic variance; with OpenCV
-    5.0 here RANSAC's fit is as accurate and its covariance as well calibrated, for 0.14 ms a
-    frame less (docs/decisions/egomotion.md). The other models are linear in their parameters:
-    a least-squares solve on the inliers. Returns
-    ``Motion.invalid()`` when there are too few points or inliers, the fit fails, the points are
-    degenerate, or (with ``image_size = (W, H)``) an image corner maps to infinity."""
+               image_size: tuple[int, int] | None = None, refit: bool = True) -> Motion:
+    """RANSAC inlier set, least-squares refit on the inliers (RANSAC's own output is not the
+    converged ML fit the covariance formula assumes: reference notes section 4.3), residual
+    noise and covariance. ``src`` are exact points, ``dst`` their tracked positions (pixels).
+    ``refit=False``: the homography is RANSAC's own fit (:func:`_ransac`), one fit per frame,
+    0.14 ms less at 1280x720 but not the default (docs/decisions/egomotion.md); the other
+    models are always a least-squares solve on the inliers. Returns ``Motion.invalid()`` when
+    there are too few points or inliers, the fit fails, the points are degenerate, or (with
+    ``image_size = (W, H)``) an image corner maps to infinity."""
     src = np.asarray(src, dtype=float).reshape(-1, 2)
     dst = np.asarray(dst, dtype=float).reshape(-1, 2)
     need = max(int(min_inliers), hc.min_points(model) + 1)
@@ -154,8 +153,12 @@ def robust_fit(src: np.ndarray, dst: np.ndarray, model: str = "homography", thre
             return Motion.invalid()
         H, inl = fit
         s, d = src[inl], dst[inl]
-        if H is None:
+        if model != "homography":
             H = hc.fit_least_squares(s, d, model)
+        elif refit:
+            H, _ = cv2.findHomography(s, d, 0)
+            if H is None:
+                return Motion.invalid()
         if not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
             return Motion.invalid()
         H = H / H[2, 2]
@@ -200,6 +203,9 @@ class GridLK:
         ransac_threshold: float = param(3.0, "RANSAC inlier threshold (px, full resolution)")
         ransac_iters: int = param(2000, "RANSAC iterations at most")
         ransac_confidence: float = param(0.995, "RANSAC confidence")
+        refit: bool = param(True, "fit the homography again by least squares on RANSAC's inliers "
+                                  "(findHomography method 0); false = RANSAC's own fit, one fit per "
+                                  "frame (0.14 ms less at 1280x720; docs/decisions/egomotion.md)")
         min_inliers: int = param(20, "fewer inliers than this gives an invalid motion")
 
         def __post_init__(self) -> None:
@@ -254,7 +260,7 @@ class GridLK:
         finite = np.all(np.isfinite(dst), axis=1)
         motion = robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold, p.min_inliers,
                             p.ransac_iters, p.ransac_confidence,
-                            image_size=(self._full_shape[1], self._full_shape[0]))
+                            image_size=(self._full_shape[1], self._full_shape[0]), refit=p.refit)
         return flag_unchanged(motion, prev_plain, self._prev_plain, p.downscale)
 
     def _take(self, image: object) -> np.ndarray | None:
