@@ -302,3 +302,17 @@ def test_a_repeated_picture_is_unchanged_a_moved_one_is_not(cls: type, ground: n
     assert d[4, 4] == d[4, 5] == 8.0 and np.count_nonzero(d) == 2
     assert not grid_lk.unchanged(before, after, grid_lk.UNCHANGED_CELL)
     assert grid_lk.unchanged(before, before, grid_lk.UNCHANGED_CELL)
+
+
+def test_the_block_test_is_skipped_for_a_motion_that_moves_the_image() -> None:
+    """flag_unchanged tests the blocks only while the fitted motion moves no image corner by
+    UNCHANGED_MOVE px (a repeated picture gives LK no flow): on the same two images, the identity
+    flags them, a 1 px pan (valid) does not, an invalid motion is tested."""
+    from mata_eval.types import Motion
+
+    img = np.full((180, 320), 90, np.uint8)
+    pan = np.array([[1.0, 0, grid_lk.UNCHANGED_MOVE], [0, 1, 0], [0, 0, 1]])
+    assert grid_lk.flag_unchanged(Motion.identity(), img, img, 2.0).unchanged
+    assert not grid_lk.flag_unchanged(Motion(pan), img, img, 2.0).unchanged
+    assert grid_lk.flag_unchanged(Motion.invalid(), img, img, 2.0).unchanged
+    assert grid_lk.flag_unchanged(Motion(np.diag([1.001, 1.0, 1.0])), img, img, 2.0).unchanged  # < 1 px at 640 px
