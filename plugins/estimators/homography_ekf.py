@@ -40,8 +40,9 @@ BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for 
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
-#: feedback_hold and repeat_hold trust a box used at half the tracker's typical confidence or more: its R is at
-#: most 4 times nominal (r_confidence), the level of the relative gate's drop test (tau_diff 0.5)
+#: feedback_hold and repeat_hold trust a box used at half the tracker's typical confidence or
+#: more: its R is at most 4 times nominal (r_confidence), the level of the relative gate's drop
+#: test (tau_diff 0.5)
 HOLD_CONFIDENCE = 0.5
 #: feedback_hold holds a box at most this old (seconds; docs/mata.md): on the 30 fps tuning footage
 #: every LTP box is 1/30 s old when the tracker next starts, every EOP box 0.1 s or more, and
