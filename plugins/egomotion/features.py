@@ -18,7 +18,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Motion
 
-from .grid_lk import flag_unchanged, prepare_gray, robust_fit, to_full_resolution
+from .grid_lk import flag_unchanged, normalised_gray, prepare_gray, robust_fit, to_full_resolution
 
 
 class FeatureLK:
@@ -83,13 +83,13 @@ class FeatureLK:
 
     def _take(self, image: object) -> np.ndarray | None:
         p = self.params
-        gray = prepare_gray(image, p.downscale, p.normalise)
+        plain = prepare_gray(image, p.downscale)   # flag_unchanged compares these
+        gray = normalised_gray(image, plain) if plain is not None and p.normalise else plain
         corners = None
         if gray is not None:
             corners = cv2.goodFeaturesToTrack(gray, p.max_corners, p.quality_level, p.min_distance,
                                               blockSize=p.block_size, useHarrisDetector=False, k=0.04)
-        self._prev, self._prev_corners = gray, corners
-        self._prev_plain = prepare_gray(image, p.downscale) if p.normalise else gray
+        self._prev, self._prev_plain, self._prev_corners = gray, plain, corners
         self._full_shape = tuple(image.shape[:2]) if gray is not None else ()  # type: ignore[union-attr]
         return gray
 

@@ -62,9 +62,13 @@ def prepare_gray(image: object, downscale: float, normalise: bool = False) -> np
         h, w = gray.shape
         size = (max(1, round(w / downscale)), max(1, round(h / downscale)))
         gray = derived(image, ("gray", size), lambda _: cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
-    if normalise:
-        gray = derived(image, ("gray", gray.shape, "normalised"), lambda _: normalise_intensity(gray))
-    return gray
+    return normalised_gray(image, gray) if normalise else gray
+
+
+def normalised_gray(image: object, gray: np.ndarray) -> np.ndarray:
+    """:func:`normalise_intensity` of ``gray``, a grey image :func:`prepare_gray` made of
+    ``image``; on a scheduler frame computed once per frame and shared."""
+    return derived(image, ("gray", gray.shape, "normalised"), lambda _: normalise_intensity(gray))
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -275,9 +279,9 @@ class GridLK:
         return flag_unchanged(motion, prev_plain, self._prev_plain, p.downscale)
 
     def _take(self, image: object) -> np.ndarray | None:
-        gray = prepare_gray(image, self.params.downscale, self.params.normalise)
-        self._prev = gray
-        self._prev_plain = prepare_gray(image, self.params.downscale) if self.params.normalise else gray
+        plain = prepare_gray(image, self.params.downscale)   # flag_unchanged compares these
+        gray = normalised_gray(image, plain) if plain is not None and self.params.normalise else plain
+        self._prev, self._prev_plain = gray, plain
         self._full_shape = tuple(image.shape[:2]) if gray is not None else ()  # type: ignore[union-attr]
         return gray
 
