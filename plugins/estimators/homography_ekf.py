@@ -741,9 +741,8 @@ class HomographyEKF:
 
 
 def _withheld(est: Estimate) -> Estimate:
-    """``est`` with no search centre fed back: ``dataclasses.replace(est, feedback=False)`` at half
-    its cost (asked on most ticks with the holds on; tests/test_feedback.py checks they agree)."""
-    return Estimate(est.box, est.cov, False, est.search)
+    """``est`` with no search centre fed back (the tracker searches where it would alone)."""
+    return dataclasses.replace(est, feedback=False)
 
 
 def _shift(centre: tuple[float, float], b: Box) -> float:
