@@ -18,15 +18,14 @@ the ratio filterpy / ours (issue 18 target: >= 3 and a tick <= 20 us).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import importlib.util
 import sys
 import time
 
 import numpy as np
-import yaml
 from filterpy.kalman import KalmanFilter
 
+from mata_eval.params import build_params, parse_key_values
 from mata_eval.types import Box, Motion, Stamped, TrackerOutput
 from mata_eval_plugins.estimators import ekf_math as em
 from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
@@ -56,16 +55,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="a homography_ekf parameter (repeatable; value in YAML)")
     args = ap.parse_args(argv)
     backend = args.backend or ("numba" if importlib.util.find_spec("numba") else "numpy")
-    params = {} if args.preset is None else {"preset": args.preset}
-    for item in args.param:
-        key, sep, value = item.partition("=")
-        if not (sep and key in {f.name for f in dataclasses.fields(HomographyEKF.Params)}):
-            ap.error(f"--param {item!r}: expected KEY=VALUE with a homography_ekf parameter as KEY")
-        params[key] = yaml.safe_load(value)
     try:
-        est = HomographyEKF(HomographyEKF.Params(**params), backend=backend)
-    except (TypeError, ValueError) as exc:
+        params = build_params(HomographyEKF.Params, {**({} if args.preset is None else {"preset": args.preset}),
+                                                     **parse_key_values(args.param)})
+    except ValueError as exc:
         ap.error(f"--param: {exc}")
+    est = HomographyEKF(params, backend=backend)
     est.initialize(Box(300.0, 200.0, 40.0, 30.0), 0.0)
     clock = [0]
 

@@ -19,7 +19,6 @@ the repetitions:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import sys
 import time
@@ -27,9 +26,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from mata_eval.core.sequence import Sequence
+from mata_eval.params import build_params, parse_key_values
 from mata_eval.run.scheduler import run_sequence
 from mata_eval_plugins.egomotion.grid_lk import GridLK
 from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
@@ -65,14 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--grid-lk", action="append", default=[], metavar="KEY=VALUE",
                     help="a grid_lk parameter of the MATA run (repeatable; value in YAML)")
     args = ap.parse_args(argv)
-    grid_lk = {}
-    for item in args.grid_lk:
-        key, sep, value = item.partition("=")
-        if not (sep and key in {f.name for f in dataclasses.fields(GridLK.Params)}):
-            ap.error(f"--grid-lk {item!r}: expected KEY=VALUE with a grid_lk parameter as KEY")
-        grid_lk[key] = yaml.safe_load(value)
     try:
-        GridLK.Params(**grid_lk)
+        grid_lk = parse_key_values(args.grid_lk)
+        build_params(GridLK.Params, grid_lk)
     except ValueError as exc:
         ap.error(f"--grid-lk: {exc}")
     cv2.setNumThreads(1)

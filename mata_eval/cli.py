@@ -186,24 +186,10 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(build_params(cls.Params, values)).sequences())
 
 
-def _parse_sets(items: Sequence[str] | None) -> dict[str, Any]:
-    out = {}
-    for item in items or ():
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        try:
-            import yaml
-
-            out[key] = yaml.safe_load(value)
-        except Exception:
-            out[key] = value
-    return out
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score one or more results folders against one dataset, in one process: the annotations
     are read once and every folder is one row of the table."""
+    from .core.params import parse_key_values
     from .report.overview import render_table
     from .score.evaluate import detect_layout, evaluate_results, save_scores
 
@@ -211,9 +197,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print("error: --name and --output take one RESULTS_DIR (each folder is named after itself; "
               "a mata-eval run folder gets its own scores.json)", file=sys.stderr)
         return 2
+    try:
+        sets = parse_key_values(args.set or ())
+    except ValueError as exc:
+        print(f"error: --set: {exc}", file=sys.stderr)
+        return 2
     all_scores = []
     try:
-        seqs = load_dataset(args.dataset, args.root, _parse_sets(args.set))
+        seqs = load_dataset(args.dataset, args.root, sets)
         for results_dir in args.results_dirs:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):

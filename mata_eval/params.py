@@ -3,6 +3,6 @@
 Public plugin API: plugins import from here. The code lives in :mod:`mata_eval.core.params`;
 this module re-exports it so that ``from mata_eval.params import ...`` stays stable."""
 
-from .core.params import ParamInfo, build_params, describe, param
+from .core.params import ParamInfo, build_params, describe, param, parse_key_values
 
-__all__ = ["ParamInfo", "build_params", "describe", "param"]
+__all__ = ["ParamInfo", "build_params", "describe", "param", "parse_key_values"]

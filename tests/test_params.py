@@ -6,7 +6,7 @@ from typing import Literal
 import pytest
 
 from mata_eval.core.errors import ConfigError
-from mata_eval.params import build_params, describe, param
+from mata_eval.params import build_params, describe, param, parse_key_values
 
 
 @dataclass(frozen=True)
@@ -81,3 +81,12 @@ def test_plugin_check_naming_a_key_gets_that_keys_line():
     with pytest.raises(ConfigError) as err:
         build_params(KeyChecked, {"shapes": ["hexagon"]}, ("occlusion",), lambda kp: lines[tuple(kp)])
     assert str(err.value) == "exp.yaml:6: occlusion.shapes: unknown shape 'hexagon'"
+
+
+def test_command_line_key_values_are_read_as_yaml():
+    # what `mata-eval eval --set` and the benchmarks' --param / --grid-lk hand to build_params
+    got = parse_key_values(["a=1", "b=0.5", "c=true", "d=null", "e=x=y", "f=[1, 2]", "g=: bad"])
+    assert got == {"a": 1, "b": 0.5, "c": True, "d": None, "e": "x=y", "f": [1, 2], "g": ": bad"}
+    for bad in ("novalue", "=3"):
+        with pytest.raises(ValueError, match="expected KEY=VALUE"):
+            parse_key_values([bad])

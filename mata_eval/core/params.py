@@ -54,6 +54,24 @@ def describe(params_cls: type) -> list[ParamInfo]:
     return out
 
 
+def parse_key_values(items: typing.Iterable[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` command-line items as a mapping, each value read as YAML (kept as the raw
+    string where it is not valid YAML), for :func:`build_params` to validate. The caller names
+    its option in the error."""
+    import yaml  # lazily: the command line's start-up stays light
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"expected KEY=VALUE, got {item!r}")
+        try:
+            out[key] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            out[key] = value
+    return out
+
+
 def build_params(
     params_cls: type,
     values: Mapping[str, Any],
