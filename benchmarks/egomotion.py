@@ -30,9 +30,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 
 from mata_eval.data import synth
+from mata_eval.params import build_params, parse_key_values
 from mata_eval_plugins.egomotion import homography_covariance as hc
 from mata_eval_plugins.egomotion.features import FeatureLK
 from mata_eval_plugins.egomotion.grid_lk import GridLK
@@ -57,13 +57,13 @@ def methods(variants: dict[str, dict] | None = None) -> dict[str, object]:
 def parse_variant(text: str) -> tuple[str, dict]:
     """``NAME:KEY=VALUE,KEY=VALUE`` (values in YAML: 3, 2.5, true) -> (NAME, parameters)."""
     name, sep, body = text.partition(":")
-    try:
-        kw = {k.strip(): yaml.safe_load(v) for k, v in (item.split("=", 1) for item in body.split(","))}
-        GridLK.Params(**kw)
-    except (ValueError, TypeError) as exc:
-        raise SystemExit(f"--variant {text!r}: expected NAME:KEY=VALUE,... with grid_lk parameters ({exc})")
     if not (sep and name):
         raise SystemExit(f"--variant {text!r}: expected NAME:KEY=VALUE,...")
+    try:
+        kw = parse_key_values(item.strip() for item in body.split(","))
+        build_params(GridLK.Params, kw)
+    except ValueError as exc:
+        raise SystemExit(f"--variant {text!r}: expected NAME:KEY=VALUE,... with grid_lk parameters ({exc})")
     return name, kw
 
 
