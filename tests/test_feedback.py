@@ -130,10 +130,12 @@ def test_a_pan_larger_than_half_the_box_is_fed_back_a_smaller_one_is_not(shift, 
             assert p[1] == pytest.approx(100.0, abs=0.5)
 
 
-def test_the_reference_is_the_trackers_newest_box_by_capture_time():
-    # A box that arrives late (captured at 0.1 s, after one captured at 0.2 s) is not where the
-    # tracker searches next: the shift is measured from the box of 0.2 s, 30 px (1.5 box
-    # widths) from the initial box, which the estimate follows.
+@pytest.mark.parametrize("one_step", [False, True])
+def test_the_reference_is_the_trackers_newest_box_by_capture_time(one_step):
+    # A box that arrives late (captured at 0.1 s, after one captured at 0.2 s, in a later step
+    # or later in the same step) is not where the tracker searches next: the shift is measured
+    # from the box of 0.2 s, 30 px (1.5 box widths) from the initial box, which the estimate
+    # follows.
     est = HomographyEKF(HomographyEKF.Params(feedback_shift=0.5))
     est.initialize(BOX, 0.0)
     newest = Box(BOX.x + 30.0, BOX.y, BOX.w, BOX.h)
@@ -141,7 +143,11 @@ def test_the_reference_is_the_trackers_newest_box_by_capture_time():
     def det(box, t_capture):
         return Stamped(TrackerOutput(box, confidence=0.9), t_capture, 0.2)
 
-    for out in (est.step(0.2, (), [det(newest, 0.2)]), est.step(0.2, (), [det(BOX, 0.1)])):
+    if one_step:
+        outs = [est.step(0.2, (), [det(newest, 0.2), det(BOX, 0.1)])]
+    else:
+        outs = [est.step(0.2, (), [det(newest, 0.2)]), est.step(0.2, (), [det(BOX, 0.1)])]
+    for out in outs:
         assert abs(out.box.cx - newest.cx) < 0.5 * BOX.w < abs(out.box.cx - BOX.cx)
         assert not out.feedback
 

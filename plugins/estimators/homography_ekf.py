@@ -356,6 +356,7 @@ class HomographyEKF:
         # when asked
         self._newest_tick: tuple[FilterState, FilterState] | None = None
         self._previous_t = -math.inf  # the time of the tick before the newest
+        self._feedback_rules = p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold
 
     # --- interface ---------------------------------------------------------------------------
 
@@ -389,19 +390,22 @@ class HomographyEKF:
             i = newest if item.t_capture >= on_time else self._tick_index(item.t_capture, True)
             ticks[i].motions.append(item)
             first = i if i < first else first
+        noted, t_newest = None, self._newest.t_capture   # the tracker's newest box, its tick
         for item in detections:
             i = newest if item.t_capture >= on_time else self._tick_index(item.t_capture, False)
             ticks[i].detections.append(item)
             first = i if i < first else first
+            if self._feedback_rules and item.t_capture >= t_newest and item.value.box.is_valid:
+                noted, t_newest = (item, ticks[i]), item.t_capture
         if first == newest:
             last.after = self._run_tick(last)
         else:
             self._replay(first)
         self._trim()
         est = self._estimate(self._ticks[-1].after)
-        p = self.params
-        if p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold:
-            self._note_newest_box(detections)
+        if self._feedback_rules:
+            if noted is not None:
+                self._note_newest_box(*noted)
             est = self._with_feedback(est)
         return est
 
@@ -642,24 +646,15 @@ class HomographyEKF:
             r = r / max(relative_conf, 0.1) ** 2
         return np.eye(4) * r
 
-    def _note_newest_box(self, detections: Sequence[Stamped[TrackerOutput]]) -> None:
+    def _note_newest_box(self, det: Stamped[TrackerOutput], tick: _Tick) -> None:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
         and the states before and after its tick as they are now (a later replay replaces the
-        tick's states, not these): whether the filter used the box, the posterior centre there
-        (for ``feedback_carry``) and the box's relative confidence (for ``feedback_hold``,
-        ``repeat_hold``) are read from them when asked (most ticks ask for none)."""
-        for det in detections:
-            if det.value.box.is_valid and det.t_capture >= self._newest.t_capture:
-                tick = self._tick_of(det)
-                self._newest, self._newest_tick = det, None if tick is None else (tick.before, tick.after)
-
-    def _tick_of(self, det: Stamped[TrackerOutput]) -> _Tick | None:
-        """The kept tick that holds this detection (the newest first)."""
-        for tick in reversed(self._ticks):
-            for d in tick.detections:
-                if d is det:
-                    return tick
-        return None
+        tick's states, not these; None when the tick fell out of the history): whether the
+        filter used the box, the posterior centre there (for ``feedback_carry``) and the box's
+        relative confidence (for ``feedback_hold``, ``repeat_hold``) are read from them when
+        asked (most ticks ask for none)."""
+        kept = tick.t >= self._ticks[0].t    # ticks are in time order; _trim drops the oldest
+        self._newest, self._newest_tick = det, (tick.before, tick.after) if kept else None
 
     def _newest_use(self) -> tuple[FilterState, FilterState] | None:
         """The states before and after the tick where the filter used the tracker's newest box,
@@ -686,8 +681,11 @@ class HomographyEKF:
         that box is at most HOLD_AGE_S old and was used at a relative confidence
         of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``:
         nothing is fed back on a repeated picture while that box is fresh and trusted."""
-        if self.params.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
+        p = self.params
+        if p.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
             return _withheld(est)
+        if not (p.feedback_carry or p.feedback_hold or p.feedback_shift):
+            return est
         b = self._newest.value.box
         if self.params.feedback_carry and (fit := self._newest_fit()) is not None:
             fx, fy = fit
