@@ -167,7 +167,7 @@ def test_carry_hands_the_trackers_box_moved_by_the_camera_not_the_smoothed_estim
     errors = {}
     for carry in (False, True):
         tracker = WorldStillTracker(pan)
-        still = {} if preset == "paper" else dict(follow_prior=0.0, velocity_decay_s=0.0)
+        still = {} if preset == "paper" else dict(follow_prior=0.0, velocity_decay_s=0.0, feedback_hold=False)
         est = HomographyEKF(HomographyEKF.Params(preset=preset, r_box=400.0, feedback_carry=carry, **still))
         run_sequence(seq, tracker, PanEgoMotion(pan), est, LTP(), np.random.default_rng(0))
         errors[carry] = [p[0] - (100.0 + 15.0 * k) for k, p in tracker.calls]
@@ -182,7 +182,7 @@ def test_carry_only_a_box_the_filter_used():
     # a box the gate rejects (confidence 0: "found nothing") is not carried: the estimate is.
     far = Box(BOX.x + 40.0, BOX.y, BOX.w, BOX.h)
     for confidence, search in ((0.9, far.center), (0.0, None)):
-        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True))
+        est = HomographyEKF(HomographyEKF.Params(feedback_carry=True, feedback_hold=False))
         est.initialize(BOX, 0.0)
         out = est.step(0.1, (), [Stamped(TrackerOutput(far, confidence), 0.1, 0.1)])
         assert out.search == (pytest.approx(search) if search else None)
@@ -280,10 +280,60 @@ def test_repeat_hold_keeps_the_trackers_own_search_on_a_repeated_picture(backend
     if backend == "numba":
         pytest.importorskip("numba")
     tracker = PictureTracker(doubtful)
-    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold), backend=backend)
+    est = HomographyEKF(HomographyEKF.Params(repeat_hold=hold, feedback_hold=False), backend=backend)
     run_sequence(toy_sequence(len(PICTURE)), tracker, RepeatEgoMotion(), est, LTP(), np.random.default_rng(0))
     assert [k for k, p in tracker.calls if p is None] == withheld
     assert est.state.gate.n_used == len(PICTURE) - 1  # every box used, the doubtful one too
     for k, p in tracker.calls:
         if PICTURE[k] == PICTURE[k - 1] and not hold:
             assert p[0] - (100.0 + 12.0 * PICTURE[k]) > 6.0  # ahead of a target that did not move
+
+
+def fresh_run(last: Box, confidence: float = 0.9, captured: float = 0.0, backend: str = "auto", **params):
+    """Preset mata with a large R (20 px std: the estimate lags the boxes), a target moving
+    3 px right per frame whose exact box comes at confidence 0.9 on frames 1-5, then ``last``
+    at frame 6 at ``confidence``, captured ``captured`` frames before that tick. Returns the
+    estimates of frames 1-6 and the filter."""
+    est = HomographyEKF(HomographyEKF.Params(r_box=400.0, **params), backend=backend)
+    est.initialize(BOX, 0.0)
+    outs = []
+    for k in range(1, 6):
+        box = Box(BOX.x + 3.0 * k, BOX.y, BOX.w, BOX.h)
+        outs.append(est.step(k / FPS, (), [Stamped(TrackerOutput(box, 0.9), k / FPS, k / FPS)]))
+    t_cap = (6 - captured) / FPS
+    outs.append(est.step(6 / FPS, (), [Stamped(TrackerOutput(last, confidence), t_cap, 6 / FPS)]))
+    return outs, est
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_fresh_output_reports_a_fresh_trusted_box_and_leaves_the_filter_alone(backend):
+    # A box captured at this tick, used at the tracker's typical confidence and containing the
+    # estimate's centre is reported as it is (no latency to make up; the filter's centre lags
+    # it, by 1.8 px at frame 1 and 0.3 px at frame 6 as it learns the velocity); the filter's
+    # state and what is fed back (here nothing: feedback_hold) are those of fresh_output off.
+    if backend == "numba":
+        pytest.importorskip("numba")
+    on, est_on = fresh_run(Box(BOX.x + 18.0, BOX.y, BOX.w, BOX.h), backend=backend)
+    off, est_off = fresh_run(Box(BOX.x + 18.0, BOX.y, BOX.w, BOX.h), fresh_output=False, backend=backend)
+    for k, (a, b) in enumerate(zip(on, off), start=1):
+        assert a.box == Box(BOX.x + 3.0 * k, BOX.y, BOX.w, BOX.h)   # the tracker's box, bit for bit
+        assert a.box.cx - b.box.cx > 0.2                              # the filter lags it
+        assert a.prior == b.prior and a.feedback == b.feedback
+        np.testing.assert_array_equal(a.cov, b.cov)
+    np.testing.assert_array_equal(est_on.state.x, est_off.state.x)
+
+
+@pytest.mark.parametrize("last, confidence, captured", [
+    (Box(BOX.x + 60.0, BOX.y, BOX.w, BOX.h), 0.9, 0),   # jumps 3 box widths: a distractor
+    (Box(BOX.x + 18.0, BOX.y, BOX.w, BOX.h), 0.3, 0),   # relative confidence 0.33: doubted
+    (Box(BOX.x + 18.0, BOX.y, BOX.w, BOX.h), 0.9, 1),   # captured a frame before this tick
+])
+def test_fresh_output_leaves_the_filters_estimate_for_a_jump_a_doubt_or_latency(last, confidence, captured):
+    on, _ = fresh_run(last, confidence, captured)
+    off, _ = fresh_run(last, confidence, captured, fresh_output=False)
+    assert on[-1].box == off[-1].box != last
+
+
+def test_fresh_output_is_off_in_the_paper_preset():
+    assert HomographyEKF.Params(preset="paper").resolved().fresh_output is False
+    assert HomographyEKF.Params().resolved().fresh_output is True

@@ -41,7 +41,7 @@ IMPLEMENTS = frozenset({
     "tau_sigma", "delay", "history_s", "follow_prior", "velocity_decay_s", "h_update", "box_motion",
     "r_box", "r_box_rel", "r_confidence", "r_h_floor", "q_box", "q_box_rel", "q_h", "q_v", "q_a", "q_j",
     "p0_box", "p0_h", "p0_v", "p0_a", "p0_j",
-    "q_adapt", "follow_consistent", "feedback_shift", "feedback_carry", "feedback_hold", "repeat_hold"})  # the feedback ones act in step(), outside the tick
+    "q_adapt", "follow_consistent", "feedback_shift", "feedback_carry", "feedback_hold", "repeat_hold", "fresh_output"})  # the feedback ones act in step(), outside the tick
 
 # cfg: the filter's constant parameters, one float vector (numba's dispatch costs per argument):
 # the scalars below, then the 9 floors of the homography R (C_FLOOR) and the Q rates (C_Q, one

@@ -40,7 +40,7 @@ BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for 
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
-#: feedback_hold and repeat_hold trust a box used at half the tracker's typical confidence or
+#: feedback_hold, repeat_hold and fresh_output trust a box used at half the tracker's typical confidence or
 #: more: its R is at most 4 times nominal (r_confidence), the level of the relative gate's drop
 #: test (tau_diff 0.5)
 HOLD_CONFIDENCE = 0.5
@@ -65,11 +65,11 @@ PRESETS: dict[str, dict[str, Any]] = {
     "paper": dict(gate="absolute", tau_ewma=0.25, tau_diff=0.25, chi2_gate=0.0, follow_consistent=False,
                   delay="ignore", box_motion="corners", r_box=4.0, r_box_rel=0.0, r_confidence=False,
                   q_box=30.0, q_box_rel=0.0, q_v=1e3, follow_prior=0.0, velocity_decay_s=0.0, q_adapt=False,
-                  repeat_hold=False),
+                  repeat_hold=False, feedback_hold=False, fresh_output=False),
     "mata": dict(gate="relative", tau_ewma=0.25, tau_diff=0.5, chi2_gate=18.47, follow_consistent=True,
                  delay="compensate", box_motion="centre", r_box=1.0, r_box_rel=0.05, r_confidence=True,
                  q_box=0.0, q_box_rel=0.2, q_v=1e2, follow_prior=1.0, velocity_decay_s=1.0, q_adapt=True,
-                 repeat_hold=True),
+                 repeat_hold=True, feedback_hold=True, fresh_output=True),
 }
 
 
@@ -240,11 +240,16 @@ class HomographyEKF:
             False, "with feedback, when the filter used the tracker's newest box, hand the tracker "
             "that box moved by the filter's predicted motion since its capture instead of the "
             "estimate's centre (false: the estimate, paper L424; docs/mata.md)")
-        feedback_hold: bool = param(
-            False, "with feedback, hand the tracker no search centre while its newest box is at most "
-            "0.05 s old (HOLD_AGE_S), was used by the filter at a relative confidence of at least 0.5 "
-            "(HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches there "
-            "anyway); otherwise the estimate (paper L424; docs/mata.md)")
+        feedback_hold: bool | None = _preset_param(
+            "feedback_hold", "with feedback, hand the tracker no search centre while its newest box "
+            "is at most 0.05 s old (HOLD_AGE_S), was used by the filter at a relative confidence of "
+            "at least 0.5 (HOLD_CONFIDENCE) and contains the estimate's centre (the tracker searches "
+            "there anyway); otherwise the estimate (paper L424; docs/mata.md)")
+        fresh_output: bool | None = _preset_param(
+            "fresh_output", "report the tracker's box itself, not the filter's, when it was captured "
+            "at this tick (no latency), used at a relative confidence of at least 0.5 "
+            "(HOLD_CONFIDENCE) and contains the estimate's centre; the filter's state, covariance "
+            "and what is fed back are unchanged (docs/mata.md)")
         repeat_hold: bool | None = _preset_param(
             "repeat_hold", "with feedback, on a frame that repeats the previous picture (block B's "
             "Motion.unchanged), hand the tracker no search centre while its newest box is from the "
@@ -356,7 +361,9 @@ class HomographyEKF:
         # when asked
         self._newest_tick: tuple[FilterState, FilterState] | None = None
         self._previous_t = -math.inf  # the time of the tick before the newest
-        self._feedback_rules = p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold
+        # rules that read the tracker's newest box (noted in step())
+        self._box_rules = (p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold
+                           or p.fresh_output)
 
     # --- interface ---------------------------------------------------------------------------
 
@@ -395,7 +402,7 @@ class HomographyEKF:
             i = newest if item.t_capture >= on_time else self._tick_index(item.t_capture, False)
             ticks[i].detections.append(item)
             first = i if i < first else first
-            if self._feedback_rules and item.t_capture >= t_newest and item.value.box.is_valid:
+            if self._box_rules and item.t_capture >= t_newest and item.value.box.is_valid:
                 noted, t_newest = (item, ticks[i]), item.t_capture
         if first == newest:
             last.after = self._run_tick(last)
@@ -403,10 +410,12 @@ class HomographyEKF:
             self._replay(first)
         self._trim()
         est = self._estimate(self._ticks[-1].after)
-        if self._feedback_rules:
+        if self._box_rules:
             if noted is not None:
                 self._note_newest_box(*noted)
             est = self._with_feedback(est)
+            if self.params.fresh_output and self._fresh_box_agrees(est):
+                est = dataclasses.replace(est, box=self._newest.value.box, search=est.prior)
         return est
 
     @property
@@ -703,6 +712,15 @@ class HomographyEKF:
         if self._ticks[-1].t - self._newest.t_capture > HOLD_AGE_S + EPS_T or est.prior is None:
             return False
         return _shift(est.prior, b) <= 0.5 and self._trusted()
+
+    def _fresh_box_agrees(self, est: Estimate) -> bool:
+        """``fresh_output``: the tracker's newest box was captured at this tick, is trusted, and
+        contains the estimate's centre. Such a box has no latency for the filter to make up, and
+        at LTP the filter's centre is further from the truth than it (docs/mata.md); a box that
+        jumps away from the estimate (a distractor, an occluder) is still smoothed by the filter."""
+        b = self._newest.value.box
+        return (self._newest.t_capture >= self._ticks[-1].t - EPS_T
+                and _shift(est.box.center, b) <= 0.5 and self._trusted())
 
     def _fresh_and_trusted(self) -> bool:
         """``repeat_hold``: the tracker's newest box was captured at the previous tick or later
