@@ -225,7 +225,8 @@ def test_without_a_writable_cache_directory_the_kernel_compiles_quietly(monkeypa
 @pytest.mark.parametrize("history", [(), (0.5,), (0.2, 0.6), (0.0, 0.0, 0.4), (0.1, 0.3, 0.7, 0.9),
                                      (0.3, float("nan"), 0.8), tuple(np.linspace(0.05, 1.0, CONFIDENCE_HISTORY))])
 def test_the_packed_gate_reads_a_relative_confidence_as_the_python_gate(history):
-    """PackedGate.relative (the compiled twin on the packed history, used by the holds) equals
+    """PackedGate.relative and PackedState.relative (the kernel's twin run as Python on the
+    packed history, used by the holds and fresh_output) and the compiled twin itself equal
     relative_confidence on the GateState with the same ranked history, NaN medians included."""
     from mata_eval_plugins.estimators.homography_ekf import GateState, relative_confidence
 
@@ -237,5 +238,7 @@ def test_the_packed_gate_reads_a_relative_confidence_as_the_python_gate(history)
     packed, plain = ekf_kernels.PackedGate(g), GateState(ranked=ranked)
     for c in (0.0, -0.1, 0.05, 0.3, 0.45, 0.9, 1.0, 2.0, float("nan"), float("inf")):
         want = relative_confidence(ranked, c, ranked=True)
-        for got in (packed.relative(c), plain.relative(c)):
+        compiled = ekf_kernels._relative_confidence(g[ekf_kernels.G_ACCEPTED + m:], len(ranked), c)
+        state = ekf_kernels.PackedState(np.zeros(1), np.zeros((1, 1)), g)
+        for got in (packed.relative(c), plain.relative(c), state.relative(c), compiled):
             assert np.array_equal(got, want, equal_nan=True), (history, c, got, want)

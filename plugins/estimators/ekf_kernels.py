@@ -119,10 +119,17 @@ class PackedGate(NamedTuple):
         return tuple(self.g[start:start + int(self.g[G_N_ACC])].tolist())
 
     def relative(self, confidence: float) -> float:
-        """GateState.relative: its compiled twin on the packed history (without building
+        """GateState.relative: the kernel's twin on the packed history (without building
         ``ranked``, a tuple of up to 100 floats)."""
-        start = G_ACCEPTED + (len(self.g) - G_ACCEPTED) // 2
-        return _relative_confidence(self.g[start:], int(self.g[G_N_ACC]), float(confidence))
+        return packed_relative(self.g, confidence)
+
+
+def packed_relative(g: np.ndarray, confidence: float) -> float:
+    """relative_confidence of ``confidence`` against the packed gate memory ``g``: the kernel's
+    twin run as Python (a median read off two sorted values costs less than a compiled call;
+    preset mata asks once per tracker box)."""
+    start = G_ACCEPTED + (len(g) - G_ACCEPTED) // 2
+    return float(_relative_confidence.py_func(g[start:], int(g.item(G_N_ACC)), float(confidence)))
 
 
 class PackedState(NamedTuple):
@@ -145,6 +152,10 @@ class PackedState(NamedTuple):
     @property
     def n_used(self) -> int:
         return int(self.g.item(G_N_USED))
+
+    def relative(self, confidence: float) -> float:
+        """FilterState.relative (without building a PackedGate)."""
+        return packed_relative(self.g, confidence)
 
 
 def _njit(fn):
