@@ -27,6 +27,7 @@ the user's cache directory when the package is read-only, and a later process lo
 
 from __future__ import annotations
 
+import math
 import struct
 import warnings
 from typing import NamedTuple
@@ -125,11 +126,22 @@ class PackedGate(NamedTuple):
 
 
 def packed_relative(g: np.ndarray, confidence: float) -> float:
-    """relative_confidence of ``confidence`` against the packed gate memory ``g``: the kernel's
-    twin run as Python (a median read off two sorted values costs less than a compiled call;
-    preset mata asks once per tracker box)."""
-    start = G_ACCEPTED + (len(g) - G_ACCEPTED) // 2
-    return float(_relative_confidence.py_func(g[start:], int(g.item(G_N_ACC)), float(confidence)))
+    """relative_confidence of ``confidence`` against the packed gate memory ``g``, in plain
+    Python floats: ``_relative_confidence``'s steps on the two middle values of the sorted
+    history (a compiled call, or numpy scalars, cost more than the arithmetic; preset mata asks
+    once per tracker box)."""
+    confidence = float(confidence)
+    if not math.isfinite(confidence) or confidence <= 0:
+        return 0.0
+    n = int(g.item(G_N_ACC))
+    if n == 0:
+        return 1.0
+    i = G_ACCEPTED + (len(g) - G_ACCEPTED) // 2 + n // 2
+    median = g.item(i) if n % 2 else (g.item(i - 1) + g.item(i)) / 2
+    if median <= 0:
+        return 1.0
+    r = confidence / median
+    return r if r < 1.0 else 1.0          # min(1.0, r), NaN included
 
 
 class PackedState(NamedTuple):
