@@ -666,8 +666,8 @@ class HomographyEKF:
         and the states before and after its tick as they are now (a later replay replaces the
         tick's states, not these; None when the tick fell out of the history): whether the
         filter used the box, the posterior centre there (for ``feedback_carry``) and the box's
-        relative confidence (for ``feedback_hold``, ``repeat_hold``) are read from them when
-        asked (most ticks ask for none)."""
+        relative confidence (for ``feedback_hold``, ``repeat_hold``, ``fresh_output``) are read
+        from them when asked."""
         kept = tick.t >= self._ticks[0].t    # ticks are in time order; _trim drops the oldest
         self._newest, self._newest_tick = det, (tick.before, tick.after) if kept else None
         self._trust = None
@@ -703,12 +703,12 @@ class HomographyEKF:
         if not (p.feedback_carry or p.feedback_hold or p.feedback_shift):
             return est
         b = self._newest.value.box
-        if self.params.feedback_carry and (fit := self._newest_fit()) is not None:
+        if p.feedback_carry and (fit := self._newest_fit()) is not None:
             fx, fy = fit
             est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
-        if self.params.feedback_hold and self._holds(est, b):
+        if p.feedback_hold and self._holds(est, b):
             return _withheld(est)
-        f = self.params.feedback_shift
+        f = p.feedback_shift
         if not f:
             return est
         return est if _shift(est.prior, b) > f else _withheld(est)
