@@ -420,7 +420,10 @@ class HomographyEKF:
             if noted is not None:
                 self._note_newest_box(*noted)
             est = self._with_feedback(est)
-            if self.params.fresh_output and self._fresh_box_agrees(est):
+            if self.params.fresh_output and self._box_agrees(est.box.center, 0.0):
+                # fresh_output: a box captured at this tick has no latency for the filter to make
+                # up, and at LTP the filter's centre is further from the truth than it
+                # (docs/mata.md); a box that jumps away from the estimate is still smoothed
                 est = Estimate(self._newest.value.box, est.cov, est.feedback, est.prior)
         return est
 
@@ -706,28 +709,19 @@ class HomographyEKF:
         if p.feedback_carry and (fit := self._newest_fit()) is not None:
             fx, fy = fit
             est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
-        if p.feedback_hold and self._holds(est, b):
+        if p.feedback_hold and est.prior is not None and self._box_agrees(est.prior, HOLD_AGE_S):
             return _withheld(est)
         f = p.feedback_shift
         if not f:
             return est
         return est if _shift(est.prior, b) > f else _withheld(est)
 
-    def _holds(self, est: Estimate, b: Box) -> bool:
-        """``feedback_hold``: the tracker's newest box ``b`` is at most HOLD_AGE_S old, contains
-        the search centre offered, and is trusted."""
-        if self._ticks[-1].t - self._newest.t_capture > HOLD_AGE_S + EPS_T or est.prior is None:
-            return False
-        return _shift(est.prior, b) <= 0.5 and self._trusted()
-
-    def _fresh_box_agrees(self, est: Estimate) -> bool:
-        """``fresh_output``: the tracker's newest box was captured at this tick, is trusted, and
-        contains the estimate's centre. Such a box has no latency for the filter to make up, and
-        at LTP the filter's centre is further from the truth than it (docs/mata.md); a box that
-        jumps away from the estimate (a distractor, an occluder) is still smoothed by the filter."""
-        b = self._newest.value.box
-        return (self._newest.t_capture >= self._ticks[-1].t - EPS_T
-                and _shift(est.box.center, b) <= 0.5 and self._trusted())
+    def _box_agrees(self, centre: tuple[float, float], max_age: float) -> bool:
+        """The tracker's newest box is at most ``max_age`` seconds old (``feedback_hold``:
+        HOLD_AGE_S; ``fresh_output``: 0, captured at this tick), contains ``centre`` and is
+        trusted."""
+        return (self._ticks[-1].t - self._newest.t_capture <= max_age + EPS_T
+                and _shift(centre, self._newest.value.box) <= 0.5 and self._trusted())
 
     def _fresh_and_trusted(self) -> bool:
         """``repeat_hold``: the tracker's newest box was captured at the previous tick or later
