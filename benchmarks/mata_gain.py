@@ -123,14 +123,10 @@ def jitter_runs(name: str, dataset: dict, hz: float, trackers: list[str], out: P
     starts = []
     for tag, (dx, dy) in JITTER.items():
         where = out / "jitter" / tag
-        if not (reuse and any((where / name).glob("*/scores.json"))):
-            shifted_copy(Path(dataset["root"]), where / "data" / name, dx, dy)
-            exp = experiment(name, {**dataset, "root": str(where / "data" / name)}, hz, trackers, where, {})
-            exp["matrix"]["config"] = {k: CONFIGS[k] for k in ("base", "mata")}
-            exp_file = where / f"{name}.yaml"
-            exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
-            run_cli(exp_file, jobs)
-        starts.append({d.name: read_scores(d) for d in (where / name).iterdir() if (d / "scores.json").is_file()})
+        shifted_copy(Path(dataset["root"]), where / "data" / name, dx, dy)   # links: cheap to redo
+        exp = experiment(name, {**dataset, "root": str(where / "data" / name)}, hz, trackers, where, {})
+        exp["matrix"]["config"] = {k: CONFIGS[k] for k in ("base", "mata")}
+        starts.append(scored_runs(exp, where, name, jobs, reuse))
     return starts
 
 
@@ -156,6 +152,16 @@ def jitter_table(results: dict, jittered: dict, trackers: list[str]) -> list[str
     rows.append(f"values below -1 point: {below_mean} on average over the {1 + len(JITTER)} starts, "
                 f"{below_all} on every start")
     return rows
+
+
+def scored_runs(exp: dict, out: Path, name: str, jobs: int, reuse: bool) -> dict:
+    """The scores (``read_scores``) of experiment ``exp``'s runs in OUT/NAME, after running it
+    from OUT/NAME.yaml unless ``reuse`` and that folder already holds scored runs."""
+    if not (reuse and any((out / name).glob("*/scores.json"))):
+        exp_file = out / f"{name}.yaml"
+        exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
+        run_cli(exp_file, jobs)
+    return {d.name: read_scores(d) for d in (out / name).iterdir() if (d / "scores.json").is_file()}
 
 
 def run_cli(exp_file: Path, jobs: int) -> None:
@@ -238,12 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.datasets:
         dataset, hz = all_sets[name]
         exp = experiment(name, dataset, hz, args.trackers, out, estimator)
-        if not (args.reuse and any((out / name).glob("*/scores.json"))):
-            exp_file = out / f"{name}.yaml"
-            exp_file.write_text(yaml.safe_dump(exp, sort_keys=False))
-            run_cli(exp_file, args.jobs)
-        results[name] = {d.name: read_scores(d) for d in (out / name).iterdir()
-                         if (d / "scores.json").is_file()}
+        results[name] = scored_runs(exp, out, name, args.jobs, args.reuse)
     jittered = {}
     if args.jitter:
         if estimator:
