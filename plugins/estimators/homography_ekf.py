@@ -415,17 +415,11 @@ class HomographyEKF:
         else:
             self._replay(first)
         self._trim()
-        est = self._estimate(self._ticks[-1].after)
-        if self._box_rules:
-            if noted is not None:
-                self._note_newest_box(*noted)
-            est = self._with_feedback(est)
-            if self.params.fresh_output and self._box_agrees(est.box.center, 0.0):
-                # fresh_output: a box captured at this tick has no latency for the filter to make
-                # up, and at LTP the filter's centre is further from the truth than it
-                # (docs/mata.md); a box that jumps away from the estimate is still smoothed
-                est = Estimate(self._newest.value.box, est.cov, est.feedback, est.prior)
-        return est
+        if not self._box_rules:
+            return self._estimate(self._ticks[-1].after)
+        if noted is not None:
+            self._note_newest_box(*noted)
+        return self._ruled_estimate(self._ticks[-1].after)
 
     @property
     def state(self) -> FilterState:
@@ -689,32 +683,48 @@ class HomographyEKF:
         x1, y1, x2, y2 = use[1].x[em.CORNERS]
         return 0.5 * (x1 + x2), 0.5 * (y1 + y2)
 
-    def _with_feedback(self, est: Estimate) -> Estimate:
-        """What is fed back to the tracker (beyond the paper, whose L424 feeds every estimate's
-        centre back; docs/mata.md). ``feedback_carry``: when the filter used the tracker's newest
-        box, the search centre is that box moved by the filter's predicted motion since its
-        capture (camera and own motion: what the tracker cannot see), not the estimate, which
-        also carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed
-        back when that centre lies within f of the newest box (its width in x, height in y),
-        where the tracker searches anyway. ``feedback_hold``: the same with f = 0.5, only while
-        that box is at most HOLD_AGE_S old and was used at a relative confidence
-        of at least HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``:
-        nothing is fed back on a repeated picture while that box is fresh and trusted."""
+    def _ruled_estimate(self, s: FilterState) -> Estimate:
+        """The estimate of state ``s`` under the rules that read the tracker's newest box: what
+        is fed back (:meth:`_feedback`) and ``fresh_output``, built once (an Estimate costs about
+        1 us, a tenth of the tick: issue 18)."""
+        box = _box(s)
+        centre = (box.x + box.w / 2.0, box.y + box.h / 2.0)   # box.center, without the properties
+        feedback, search = self._feedback(centre)
+        if self.params.fresh_output and self._box_agrees(centre, 0.0):
+            # fresh_output: a box captured at this tick has no latency for the filter to make up,
+            # and at LTP the filter's centre is further from the truth than it (docs/mata.md); a
+            # box that jumps away from the estimate is still smoothed. What is fed back stays the
+            # filter's search centre.
+            box = self._newest.value.box
+            search = (centre if search is None else search) if feedback else None
+        return Estimate(box, s.P.copy(), feedback, search)
+
+    def _feedback(self, centre: tuple[float, float]) -> tuple[bool, tuple[float, float] | None]:
+        """What is fed back to the tracker, given the estimate's ``centre``, as Estimate's
+        (feedback, search) (beyond the paper, whose L424 feeds every estimate's centre back;
+        docs/mata.md). ``feedback_carry``: when the filter used the tracker's newest box, the
+        search centre is that box moved by the filter's predicted motion since its capture
+        (camera and own motion: what the tracker cannot see), not the estimate, which also
+        carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed back when
+        that centre lies within f of the newest box (its width in x, height in y), where the
+        tracker searches anyway. ``feedback_hold``: the same with f = 0.5, only while that box is
+        at most HOLD_AGE_S old and was used at a relative confidence of at least
+        HOLD_CONFIDENCE; an older or doubtful box gets the estimate. ``repeat_hold``: nothing is
+        fed back on a repeated picture while that box is fresh and trusted."""
         p = self.params
         if p.repeat_hold and self._repeated_picture() and self._fresh_and_trusted():
-            return _withheld(est)
+            return False, None
         if not (p.feedback_carry or p.feedback_hold or p.feedback_shift):
-            return est
+            return True, None
         b = self._newest.value.box
+        search = None
         if p.feedback_carry and (fit := self._newest_fit()) is not None:
-            fx, fy = fit
-            est = dataclasses.replace(est, search=(b.cx + est.box.cx - fx, b.cy + est.box.cy - fy))
-        if p.feedback_hold and est.prior is not None and self._box_agrees(est.prior, HOLD_AGE_S):
-            return _withheld(est)
+            search = (b.cx + centre[0] - fit[0], b.cy + centre[1] - fit[1])
+        prior = centre if search is None else search
+        if p.feedback_hold and self._box_agrees(prior, HOLD_AGE_S):
+            return False, search
         f = p.feedback_shift
-        if not f:
-            return est
-        return est if _shift(est.prior, b) > f else _withheld(est)
+        return (not f or _shift(prior, b) > f), search
 
     def _box_agrees(self, centre: tuple[float, float], max_age: float) -> bool:
         """The tracker's newest box is at most ``max_age`` seconds old (``feedback_hold``:
@@ -751,17 +761,16 @@ class HomographyEKF:
 
     @staticmethod
     def _estimate(s: FilterState) -> Estimate:
-        """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
-        x1, y1, x2, y2 = s.x[:4].tolist()
-        w, h = x2 - x1, y2 - y1
-        w, h = (1.0 if w < 1.0 else w), (1.0 if h < 1.0 else h)   # max(w, 1.0), without a call
-        return Estimate(Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h), s.P.copy())
+        """The estimate of state ``s`` (:func:`_box`, its covariance), fed back as it is."""
+        return Estimate(_box(s), s.P.copy())
 
 
-def _withheld(est: Estimate) -> Estimate:
-    """``est`` with no search centre fed back (the tracker searches where it would alone).
-    Built directly (dataclasses.replace costs 2 us; preset mata withholds on most LTP ticks)."""
-    return Estimate(est.box, est.cov, False, est.search)
+def _box(s: FilterState) -> Box:
+    """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
+    x1, y1, x2, y2 = s.x[:4].tolist()
+    w, h = x2 - x1, y2 - y1
+    w, h = (1.0 if w < 1.0 else w), (1.0 if h < 1.0 else h)   # max(w, 1.0), without a call
+    return Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h)
 
 
 def _shift(centre: tuple[float, float], b: Box) -> float:
