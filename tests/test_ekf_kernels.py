@@ -123,7 +123,8 @@ def assert_same_gate(est: HomographyEKF, ref: HomographyEKF) -> None:
     """The compiled gate memory reads as the reference's: exactly, but for the innovation
     average (rounding)."""
     gate, ref_gate = est.state.gate, ref.state.gate
-    assert (gate.ewma, gate.n_used, gate.following) == (ref_gate.ewma, ref_gate.n_used, ref_gate.following)
+    assert ((gate.ewma, gate.n_used, gate.following, gate.used_relative)
+            == (ref_gate.ewma, ref_gate.n_used, ref_gate.following, ref_gate.used_relative))
     for field in ("accepted", "ranked"):    # NaN where gating is off (a NaN confidence is used)
         np.testing.assert_array_equal(getattr(gate, field), getattr(ref_gate, field), field)
     assert gate.nis == pytest.approx(ref_gate.nis, rel=1e-12)
@@ -224,21 +225,17 @@ def test_without_a_writable_cache_directory_the_kernel_compiles_quietly(monkeypa
 
 @pytest.mark.parametrize("history", [(), (0.5,), (0.2, 0.6), (0.0, 0.0, 0.4), (0.1, 0.3, 0.7, 0.9),
                                      (0.3, float("nan"), 0.8), tuple(np.linspace(0.05, 1.0, CONFIDENCE_HISTORY))])
-def test_the_packed_gate_reads_a_relative_confidence_as_the_python_gate(history):
-    """PackedGate.relative and PackedState.relative (the kernel's twin run as Python on the
-    packed history, used by the holds and fresh_output) and the compiled twin itself equal
-    relative_confidence on the GateState with the same ranked history, NaN medians included."""
-    from mata_eval_plugins.estimators.homography_ekf import GateState, relative_confidence
+def test_the_compiled_gate_reads_a_relative_confidence_as_the_python_gate(history):
+    """The kernel's relative confidence, on the packed history, equals relative_confidence on
+    the same ranked history, NaN medians included."""
+    from mata_eval_plugins.estimators.homography_ekf import relative_confidence
 
     ranked = tuple(sorted(history, key=lambda v: (v != v, v)))   # NaN last, as a sorted history can hold
     g = ekf_kernels.new_gate(CONFIDENCE_HISTORY)
     m = (len(g) - ekf_kernels.G_ACCEPTED) // 2
     g[ekf_kernels.G_N_ACC] = len(ranked)
     g[ekf_kernels.G_ACCEPTED + m:ekf_kernels.G_ACCEPTED + m + len(ranked)] = ranked
-    packed, plain = ekf_kernels.PackedGate(g), GateState(ranked=ranked)
     for c in (0.0, -0.1, 0.05, 0.3, 0.45, 0.9, 1.0, 2.0, float("nan"), float("inf")):
         want = relative_confidence(ranked, c, ranked=True)
-        compiled = ekf_kernels._relative_confidence(g[ekf_kernels.G_ACCEPTED + m:], len(ranked), c)
-        state = ekf_kernels.PackedState(np.zeros(1), np.zeros((1, 1)), g)
-        for got in (packed.relative(c), plain.relative(c), state.relative(c), compiled):
-            assert np.array_equal(got, want, equal_nan=True), (history, c, got, want)
+        got = ekf_kernels._relative_confidence(g[ekf_kernels.G_ACCEPTED + m:], len(ranked), c)
+        assert np.array_equal(got, want, equal_nan=True), (history, c, got, want)

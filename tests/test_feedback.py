@@ -236,6 +236,25 @@ def test_hold_hands_over_the_estimate_after_a_doubtful_box():
         assert (out.prior is not None) == fed
 
 
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_the_gate_records_the_relative_confidence_of_its_ticks_last_used_box(backend):
+    # What the holds and fresh_output trust. Preset mata's relative gate (alpha 0.3, tau_ewma
+    # 0.25, tau_diff 0.5), by hand: three boxes at 0.8 are used at relative confidence 1 (the
+    # first has no history, then 0.8 / 0.8); 0.4 at 0.5 (EWMA 0.3 * 0.5 + 0.7 * 1 = 0.85, drop
+    # 0.35 <= 0.5); a tick without a box: 0; 0.1 (0.125, EWMA 0.6325, drop 0.5075 > 0.5) is
+    # rejected: 0; a tick with two boxes records the second, 0.48 after 0.8 joined the history: 0.6.
+    if backend == "numba":
+        pytest.importorskip("numba")
+    est = HomographyEKF(HomographyEKF.Params(), backend=backend)
+    est.initialize(BOX, 0.0)
+    recorded = []
+    for k, confidences in enumerate([(0.8,), (0.8,), (0.8,), (0.4,), (), (0.1,), (0.8, 0.48)], start=1):
+        est.step(k / FPS, (), [Stamped(TrackerOutput(BOX, c), k / FPS, k / FPS) for c in confidences])
+        recorded.append(est.state.gate.used_relative)
+    assert recorded == pytest.approx([1.0, 1.0, 1.0, 0.5, 0.0, 0.0, 0.6], abs=1e-12)
+
+
 PICTURE = [0, 1, 2, 2, 3, 3, 3, 4, 5]  # frame k shows picture PICTURE[k]: 3 repeats 2, 5 and 6 repeat 4
 
 

@@ -27,7 +27,6 @@ the user's cache directory when the package is read-only, and a later process lo
 
 from __future__ import annotations
 
-import math
 import struct
 import warnings
 from typing import NamedTuple
@@ -64,10 +63,11 @@ DET_ROW = f"={N_DET}d"
 DET_SIZE = struct.calcsize(DET_ROW)
 # the gate memory (HomographyEKF.GateState packed in one float vector g): the EWMA (NaN before
 # the first confidence), boxes used, q_adapt's innovation average, the number m of accepted
-# confidences kept, whether the previous box was used (1.0) or not (0.0), then the last m
+# confidences kept, whether the previous box was used (1.0) or not (0.0), the relative
+# confidence at which the tick's last box was used (0.0: not used, or no box), then the last m
 # accepted confidences (oldest first, from G_ACCEPTED) and the same in increasing order (from
 # G_ACCEPTED + history); history = (len(g) - G_ACCEPTED) // 2
-G_EWMA, G_N_USED, G_NIS, G_N_ACC, G_FOLLOWING, G_ACCEPTED = range(6)
+G_EWMA, G_N_USED, G_NIS, G_N_ACC, G_FOLLOWING, G_USED_RELATIVE, G_ACCEPTED = range(7)
 
 
 def config(*, n_deriv: int, centre: bool, h_before: bool, gating: bool, tau_sigma: float, chi2: float,
@@ -111,6 +111,10 @@ class PackedGate(NamedTuple):
         return bool(self.g[G_FOLLOWING])
 
     @property
+    def used_relative(self) -> float:
+        return float(self.g[G_USED_RELATIVE])
+
+    @property
     def accepted(self) -> tuple[float, ...]:
         return tuple(self.g[G_ACCEPTED:G_ACCEPTED + int(self.g[G_N_ACC])].tolist())
 
@@ -118,30 +122,6 @@ class PackedGate(NamedTuple):
     def ranked(self) -> tuple[float, ...]:
         start = G_ACCEPTED + (len(self.g) - G_ACCEPTED) // 2
         return tuple(self.g[start:start + int(self.g[G_N_ACC])].tolist())
-
-    def relative(self, confidence: float) -> float:
-        """GateState.relative: the kernel's twin on the packed history (without building
-        ``ranked``, a tuple of up to 100 floats)."""
-        return packed_relative(self.g, confidence)
-
-
-def packed_relative(g: np.ndarray, confidence: float) -> float:
-    """relative_confidence of ``confidence`` against the packed gate memory ``g``, in plain
-    Python floats: ``_relative_confidence``'s steps on the two middle values of the sorted
-    history (a compiled call, or numpy scalars, cost more than the arithmetic; preset mata asks
-    once per tracker box)."""
-    confidence = float(confidence)
-    if not math.isfinite(confidence) or confidence <= 0:
-        return 0.0
-    n = int(g.item(G_N_ACC))
-    if n == 0:
-        return 1.0
-    i = G_ACCEPTED + (len(g) - G_ACCEPTED) // 2 + n // 2
-    median = g.item(i) if n % 2 else (g.item(i - 1) + g.item(i)) / 2
-    if median <= 0:
-        return 1.0
-    r = confidence / median
-    return r if r < 1.0 else 1.0          # min(1.0, r), NaN included
 
 
 class PackedState(NamedTuple):
@@ -165,9 +145,10 @@ class PackedState(NamedTuple):
     def n_used(self) -> int:
         return int(self.g.item(G_N_USED))
 
-    def relative(self, confidence: float) -> float:
-        """FilterState.relative (without building a PackedGate)."""
-        return packed_relative(self.g, confidence)
+    @property
+    def used_relative(self) -> float:
+        return self.g.item(G_USED_RELATIVE)
+
 
 
 def _njit(fn):
@@ -707,16 +688,17 @@ def _valid_box(det):
 @_njit
 def _gate(cfg, g, det, x, P, z):
     """HomographyEKF._gate_detection (with confidence_gate) on the gate memory g, in place:
-    returns whether the box is used and the confidence its noise uses. The consistency of
+    returns whether the box is used and the confidence its noise uses, and records the box's
+    relative confidence in G_USED_RELATIVE when it is used (0 otherwise). The consistency of
     follow_consistent (with the predicted x, P and the box corners z) is computed only where the
     level test fails (HomographyEKF._update_detection computes it first; the same decision)."""
     m = (g.shape[0] - G_ACCEPTED) // 2
     accepted, ranked = g[G_ACCEPTED:G_ACCEPTED + m], g[G_ACCEPTED + m:]
     n = int(g[G_N_ACC])
-    conf = raw = det[D_CONF]
+    raw = det[D_CONF]
+    rel = _relative_confidence(ranked, n, raw)
     relative = cfg[C_RELATIVE] != 0.0
-    if relative:
-        conf = _relative_confidence(ranked, n, raw)
+    conf = rel if relative else raw
     accept = False
     if np.isfinite(conf):                  # confidence_gate
         a = cfg[C_ALPHA]
@@ -730,10 +712,11 @@ def _gate(cfg, g, det, x, P, z):
     if relative and conf <= 0:
         accept = False
     if not _valid_box(det) or (cfg[C_GATING] != 0.0 and not accept):
-        g[G_FOLLOWING] = 0.0
+        g[G_FOLLOWING] = g[G_USED_RELATIVE] = 0.0
         return False, 0.0
     g[G_N_USED] += 1
     g[G_FOLLOWING] = 1.0
+    g[G_USED_RELATIVE] = rel
     if relative:
         if n == m:                         # the oldest one leaves
             i = _bisect(ranked, n, accepted[0], False)
@@ -765,6 +748,7 @@ def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
             P[i, j] = P0[i, j]
     for i in range(g0.shape[0]):
         g[i] = g0[i]
+    g[G_USED_RELATIVE] = 0.0
     floor, q = cfg[C_FLOOR:C_Q], cfg[C_Q:]
     use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)
     before = cfg[C_H_BEFORE] != 0.0

@@ -128,10 +128,10 @@ class GateState(NamedTuple):
     ranked: tuple[float, ...] = ()  # ``accepted`` in increasing order (a cheap median)
     nis: float = 1.0  # q_adapt: average normalised innovation squared of the used boxes
     following: bool = False  # the filter used the tracker's previous box (``follow_consistent``)
-
-    def relative(self, confidence: float) -> float:
-        """:func:`relative_confidence` of a confidence against the accepted ones."""
-        return relative_confidence(self.ranked, confidence, ranked=True)
+    # the relative confidence at which the filter used this tick's last box (against the
+    # accepted ones before it; 0: not used, or no box): what feedback_hold, repeat_hold and
+    # fresh_output trust
+    used_relative: float = 0.0
 
 
 class FilterState(NamedTuple):
@@ -150,9 +150,9 @@ class FilterState(NamedTuple):
     def n_used(self) -> int:
         return self.gate.n_used
 
-    def relative(self, confidence: float) -> float:
-        """:meth:`GateState.relative` of this state's gate."""
-        return self.gate.relative(confidence)
+    @property
+    def used_relative(self) -> float:
+        return self.gate.used_relative
 
 
 class _Tick:
@@ -361,11 +361,10 @@ class HomographyEKF:
             self._no_cov = np.zeros((9, 9))
         self._newest: Stamped[TrackerOutput] | None = None  # the tracker's newest box (its own search centre)
         # the states before and after the tick of the tracker's newest box (None: not kept); whether
-        # the filter used the box, and what feedback_carry and the holds need, are read from them
-        # when asked
+        # the filter used the box, and what feedback_carry needs, are read from them when asked
         self._newest_tick: tuple[FilterState, FilterState] | None = None
         self._previous_t = -math.inf  # the time of the tick before the newest
-        self._trust: bool | None = None   # _trusted() of the newest box, once asked
+        self._trust = False   # the filter used the newest box at HOLD_CONFIDENCE or more (noted)
         # rules that read the tracker's newest box (noted in step())
         self._box_rules = (p.feedback_carry or p.feedback_shift or p.feedback_hold or p.repeat_hold
                            or p.fresh_output)
@@ -382,7 +381,7 @@ class HomographyEKF:
         self._ticks = [_Tick(float(t), 0.0, start, start)]
         self._newest = Stamped(TrackerOutput(box, 1.0), float(t), float(t))
         self._newest_tick, self._previous_t = None, -math.inf
-        self._trust = None
+        self._trust = False
         return self._estimate(start)
 
     def step(self, t: float, motions: Sequence[Stamped[Motion]] = (),
@@ -501,7 +500,7 @@ class HomographyEKF:
         return b                                # not finite: a degenerate input, held
 
     def _tick_state(self, tick: _Tick) -> FilterState:
-        x, P, gate = tick.before.x, tick.before.P, tick.before.gate
+        x, P, gate = tick.before.x, tick.before.P, tick.before.gate._replace(used_relative=0.0)
         motions = sorted(tick.motions, key=_t_capture)
         before = self.params.h_update == "before_predict"
         if before:
@@ -631,23 +630,23 @@ class HomographyEKF:
         its noise uses (relative with gate ``relative``), or None when the box is not used. The
         compiled path runs its twin, ``ekf_kernels._gate``, on a packed memory."""
         p = self.params
-        conf = raw = float(out.confidence)
+        raw = float(out.confidence)
+        rel = relative_confidence(gate.ranked, raw, ranked=True)
         relative = p.gate == "relative"
-        if relative:
-            conf = relative_confidence(gate.ranked, raw, ranked=True)
+        conf = rel if relative else raw
         ewma, accept = confidence_gate(gate.ewma, conf, p.alpha_ewma, p.tau_ewma, p.tau_diff, consistent)
         if relative and conf <= 0:
             accept = False  # a tracker that found nothing says so with confidence 0
         if not out.box.is_valid or (p.gating and not accept):
-            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked, gate.nis, False), None
+            return GateState(ewma, gate.accepted, gate.n_used, gate.ranked, gate.nis, False, 0.0), None
         if not relative:
-            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked, gate.nis, True), conf
+            return GateState(ewma, gate.accepted, gate.n_used + 1, gate.ranked, gate.nis, True, rel), conf
         ranked = list(gate.ranked)
         if len(gate.accepted) == CONFIDENCE_HISTORY:   # the oldest one leaves
             del ranked[bisect.bisect_left(ranked, gate.accepted[0])]
         bisect.insort(ranked, raw)
         return GateState(ewma, gate.accepted[-(CONFIDENCE_HISTORY - 1):] + (raw,), gate.n_used + 1,
-                         tuple(ranked), gate.nis, True), conf
+                         tuple(ranked), gate.nis, True, rel), conf
 
     def _box_noise(self, x: np.ndarray, relative_conf: float) -> np.ndarray:
         """R of a box: (r_box + (r_box_rel sqrt(w h))^2) I, divided by the squared relative
@@ -662,12 +661,14 @@ class HomographyEKF:
         """Keep the tracker's newest box by capture time (where it searches without a prior)
         and the states before and after its tick as they are now (a later replay replaces the
         tick's states, not these; None when the tick fell out of the history): whether the
-        filter used the box, the posterior centre there (for ``feedback_carry``) and the box's
-        relative confidence (for ``feedback_hold``, ``repeat_hold``, ``fresh_output``) are read
-        from them when asked."""
+        filter used the box and the posterior centre there (for ``feedback_carry``) are read
+        from them when asked. Whether the box is trusted (``feedback_hold``, ``repeat_hold``,
+        ``fresh_output``) is decided here: the filter used it at a relative confidence of at
+        least HOLD_CONFIDENCE (it is its tick's last box, whose ``used_relative`` the gate
+        memory records; a tick held on a degenerate input used nothing)."""
         kept = tick.t >= self._ticks[0].t    # ticks are in time order; _trim drops the oldest
         self._newest, self._newest_tick = det, (tick.before, tick.after) if kept else None
-        self._trust = None
+        self._trust = kept and tick.after is not tick.before and tick.after.used_relative >= HOLD_CONFIDENCE
 
     def _newest_use(self) -> tuple[FilterState, FilterState] | None:
         """The states before and after the tick where the filter used the tracker's newest box,
@@ -689,8 +690,10 @@ class HomographyEKF:
         1 us, a tenth of the tick: issue 18)."""
         box = _box(s)
         centre = (box.x + box.w / 2.0, box.y + box.h / 2.0)   # box.center, without the properties
-        feedback, search = self._feedback(centre)
-        if self.params.fresh_output and self._box_agrees(centre, 0.0):
+        age = self._ticks[-1].t - self._newest.t_capture     # of the tracker's newest box (s)
+        inside = self._trust and _shift(centre, self._newest.value.box) <= 0.5   # trusted, contains it
+        feedback, search = self._feedback(centre, age, inside)
+        if self.params.fresh_output and inside and age <= EPS_T:   # captured at this tick
             # fresh_output: a box captured at this tick has no latency for the filter to make up,
             # and at LTP the filter's centre is further from the truth than it (docs/mata.md); a
             # box that jumps away from the estimate is still smoothed. What is fed back stays the
@@ -699,10 +702,12 @@ class HomographyEKF:
             search = (centre if search is None else search) if feedback else None
         return Estimate(box, s.P.copy(), feedback, search)
 
-    def _feedback(self, centre: tuple[float, float]) -> tuple[bool, tuple[float, float] | None]:
-        """What is fed back to the tracker, given the estimate's ``centre``, as Estimate's
-        (feedback, search) (beyond the paper, whose L424 feeds every estimate's centre back;
-        docs/mata.md). ``feedback_carry``: when the filter used the tracker's newest box, the
+    def _feedback(self, centre: tuple[float, float], age: float,
+                  inside: bool) -> tuple[bool, tuple[float, float] | None]:
+        """What is fed back to the tracker, given the estimate's ``centre``, the ``age`` of the
+        tracker's newest box and whether that box is trusted and contains ``centre``
+        (``inside``), as Estimate's (feedback, search) (beyond the paper, whose L424 feeds every
+        estimate's centre back; docs/mata.md). ``feedback_carry``: when the filter used the tracker's newest box, the
         search centre is that box moved by the filter's predicted motion since its capture
         (camera and own motion: what the tracker cannot see), not the estimate, which also
         carries the filter's smoothing of the box. ``feedback_shift`` f: nothing is fed back when
@@ -721,31 +726,16 @@ class HomographyEKF:
         if p.feedback_carry and (fit := self._newest_fit()) is not None:
             search = (b.cx + centre[0] - fit[0], b.cy + centre[1] - fit[1])
         prior = centre if search is None else search
-        if p.feedback_hold and self._box_agrees(prior, HOLD_AGE_S):
+        if p.feedback_hold and age <= HOLD_AGE_S + EPS_T and (
+                inside if search is None else self._trust and _shift(search, b) <= 0.5):
             return False, search
         f = p.feedback_shift
         return (not f or _shift(prior, b) > f), search
 
-    def _box_agrees(self, centre: tuple[float, float], max_age: float) -> bool:
-        """The tracker's newest box is at most ``max_age`` seconds old (``feedback_hold``:
-        HOLD_AGE_S; ``fresh_output``: 0, captured at this tick), contains ``centre`` and is
-        trusted."""
-        return (self._ticks[-1].t - self._newest.t_capture <= max_age + EPS_T
-                and _shift(centre, self._newest.value.box) <= 0.5 and self._trusted())
-
     def _fresh_and_trusted(self) -> bool:
         """``repeat_hold``: the tracker's newest box was captured at the previous tick or later
         (on the picture repeated now), and is trusted."""
-        return self._newest.t_capture >= self._previous_t - EPS_T and self._trusted()
-
-    def _trusted(self) -> bool:
-        """The filter used the tracker's newest box at a relative confidence of at least
-        HOLD_CONFIDENCE (fixed once the box is noted: asked once per box)."""
-        if self._trust is None:
-            use = self._newest_use()
-            self._trust = use is not None and (
-                use[0].relative(float(self._newest.value.confidence)) >= HOLD_CONFIDENCE)
-        return self._trust
+        return self._newest.t_capture >= self._previous_t - EPS_T and self._trust
 
     def _repeated_picture(self) -> bool:
         """``repeat_hold``: block B found the newest tick's frame to repeat the previous picture
