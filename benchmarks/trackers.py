@@ -7,7 +7,8 @@ sequences in ../shared/data (issue 7), in one command:
 Timing: each tracker runs on the UAV123_10fps sequences (real 1280x720 frames, decoded once
 beforehand, JPEG decoding excluded); the figure is the median per-frame time of ``track``.
 Baseline measured in the same run: ``cv2.TrackerVit`` / ``cv2.TrackerNano`` on the same frames
-(``--opencv``, on by default when the models are present), printed as a ratio.
+(``--opencv``, on by default when the models are present), printed as a ratio; for the parity
+column our trackers reproduce the installed OpenCV's release (``opencv_port``, 5.0 or 5.1).
 Accuracy: mean IoU against the ground truth per real sequence, one pass from the first frame.
 ``--synthetic N``: also the default synthetic suite (``mata_eval.data.synth.suite_specs``, 1280x720):
 per tracker, how many sequences it *holds* (success rate, IoU > 0.5 over the frames where the
@@ -26,6 +27,8 @@ import cv2
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
+# the cv2.TrackerVit / TrackerNano release installed (5.1 changed both: docs/decisions/trackers.md)
+OPENCV_PORT = "5.1" if tuple(int(v) for v in cv2.__version__.split(".")[:2]) >= (5, 1) else "5.0"
 SEQUENCES = ("uav123_10fps/wakeboard7", "uav123_10fps/wakeboard10", "vot15_bag", "otb_Couple")
 
 
@@ -98,10 +101,13 @@ def run_opencv(tracker, frames, init: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.array(boxes), np.array(ms)
 
 
-def make_ours(name: str):
+def make_ours(name: str, opencv_port: str = "5.0"):
     from mata_eval_plugins.trackers import kcf, nanotrack, vittrack
 
-    return {"kcf": kcf.KCFTracker, "vittrack": vittrack.VitTrack, "nanotrack": nanotrack.NanoTrack}[name]()
+    if name == "kcf":
+        return kcf.KCFTracker()
+    cls = {"vittrack": vittrack.VitTrack, "nanotrack": nanotrack.NanoTrack}[name]
+    return cls(cls.Params(opencv_port=opencv_port))
 
 
 def make_opencv(name: str):
@@ -156,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         line = {"tracker": name}
         ms_720 = []
         for seq, (frames, gt) in seqs.items():
-            boxes, conf, ms = run_ours(make_ours(name), frames, gt[0])
+            boxes, conf, ms = run_ours(make_ours(name, OPENCV_PORT), frames, gt[0])
             line[seq] = float(iou(boxes, gt).mean())
             if frames[0].shape[:2] == (720, 1280):
                 ms_720.append(ms)

@@ -18,6 +18,7 @@ class P:
     sizes: list[int] = param([1, 2], "sizes")
     pair: tuple[float, float] = param((0.5, 0.5), "a pair")
     on: bool = param(True, "switch")
+    port: Literal["5.0", "5.1"] = param("5.0", "a choice that YAML reads as a number")
 
 
 def test_defaults_and_coercion():
@@ -26,15 +27,23 @@ def test_defaults_and_coercion():
     assert p.sizes == [3] and p.pair == (1.0, 2.0) and p.grid == 16 and p.path is None
 
 
+def test_a_yaml_number_that_spells_a_choice_is_that_choice():
+    import yaml   # `port: 5.1` is a float in YAML
+    assert build_params(P, yaml.safe_load("port: 5.1")).port == "5.1"
+    assert build_params(P, yaml.safe_load("port: '5.0'")).port == "5.0"
+
+
 @pytest.mark.parametrize("values, fragment", [
     ({"rate": "fast"}, "expected float, got 'fast'"),
     ({"grid": 1.5}, "expected int"),
     ({"grid": True}, "expected int"),
     ({"on": 1}, "expected bool"),
     ({"model": "kf"}, "expected one of 'cv', 'ca', 'cj'"),
+    ({"port": 5.2}, "expected one of '5.0', '5.1', got 5.2"),
+    ({"port": True}, "expected one of '5.0', '5.1'"),
     ({"pair": [1]}, "expected 2 values"),
     ({"sizes": [1, "x"]}, "expected int"),
-    ({"colour": 1}, "unknown parameter 'colour'; this plugin takes: grid, model, on, pair, path, rate, sizes"),
+    ({"colour": 1}, "unknown parameter 'colour'; this plugin takes: grid, model, on, pair, path, port, rate, sizes"),
 ])
 def test_bad_values_name_key_and_expectation(values, fragment):
     with pytest.raises(ConfigError) as err:

@@ -127,6 +127,8 @@ def _coerce(value: Any, tp: Any, kp: tuple, where: Callable) -> Any:
     if origin is Literal:
         if value in args:
             return value
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and str(value) in args:
+            return str(value)   # YAML reads `opencv_port: 5.1` as a number
         raise ConfigError(where(kp), kp, f"expected one of {', '.join(map(repr, args))}, got {value!r}")
     if origin in (list, tuple, typing.Sequence) or tp in (list, tuple):
         if not isinstance(value, (list, tuple)):

@@ -10,7 +10,8 @@ that side (OpenCV's integer ``255 / 127``); padding with the image mean; RGB blo
 blended with weight 0.455, size updated with learning rate ``penalty x score x 0.37``.
 ``scale_penalty_reference='opencv'`` keeps a quirk of OpenCV's port (the scale penalty divides by
 the size computed from the target *position*); ``'size'`` is pysot's original (the target size
-in search-crop pixels).
+in search-crop pixels). These are OpenCV 5.0's; ``opencv_port: "5.1"`` reproduces OpenCV 5.1,
+which fixed all three (float ``255 / 127``, untruncated sum, the target size as reference).
 
 Confidence: the paper's window score extended to 2-D (section 2.1, last paragraph) on the
 foreground-probability map (normalised as a PMF, square window around its peak); the raw peak
@@ -191,7 +192,10 @@ class NanoTrack:
         context_amount: float = param(0.5, "context added around the target")
         window_alpha: float = param(0.125, "2-D window score: side = 2 round(alpha 16 / 2) + 1 cells (0.125 -> 3x3)")
         scale_penalty_reference: Literal["opencv", "size"] = param(
-            "opencv", "scale penalty reference: 'opencv' = cv2.TrackerNano's, 'size' = pysot's target size")
+            "opencv", "scale penalty reference: 'opencv' = cv2.TrackerNano's (see opencv_port), 'size' = pysot's target size")
+        opencv_port: Literal["5.0", "5.1"] = param(
+            "5.0", "the cv2.TrackerNano reproduced: '5.0' (up to OpenCV 5.0) or '5.1' (search side 255/127 "
+            "of the exemplar's, size sum not truncated, scale penalty against the target size)")
         opencv_rounding: bool = param(True, "report integer (truncated) boxes exactly like cv2.TrackerNano")
 
     def __init__(self, params: "NanoTrack.Params | None" = None):
@@ -287,12 +291,14 @@ class NanoTrack:
         prior = usable_prior(prior, self._size[0], self._size[1], *image.shape[:2], margin=0.0)
         if prior is not None:
             self._pos = np.array([prior[0], prior[1]], dtype=f32)
-        size_sum = int(self._size[0] + self._size[1])          # cv2 truncates the sum
+        port50 = p.opencv_port == "5.0"
+        size_sum = self._size[0] + self._size[1]
+        size_sum = f32(int(size_sum)) if port50 else size_sum  # cv2 5.0 truncates the sum
         wc = self._size[0] + f32(p.context_amount) * f32(size_sum)
         hc = self._size[1] + f32(p.context_amount) * f32(size_sum)
         sz = np.sqrt(wc * hc)
         scale_z = f32(EXEMPLAR) / sz
-        sx = sz * f32(INSTANCE // EXEMPLAR)                     # cv2: integer 255 / 127 = 2
+        sx = sz * (f32(INSTANCE // EXEMPLAR) if port50 else f32(INSTANCE / EXEMPLAR))   # cv2 5.0: integer 255 / 127 = 2
         backbone, head = self._networks()
         crop_at = self._pos.copy()
         xf = backbone({"input": self._subwindow(image, crop_at, int(sx), INSTANCE)})["output"]
@@ -306,7 +312,7 @@ class NanoTrack:
         x2, y2 = self._grid_x + loc[2], self._grid_y + loc[3]
         pw, ph = x2 - x1, y2 - y1
         scaled = self._size * scale_z
-        if p.scale_penalty_reference == "opencv":
+        if p.scale_penalty_reference == "opencv" and port50:
             reference = size_measure(self._pos[0], self._pos[1])
         else:
             reference = size_measure(scaled[0], scaled[1])

@@ -5,11 +5,12 @@ Pre/post-processing follows ``cv2.TrackerVit`` (OpenCV ``modules/video/src/track
 tracker_vit.cpp``): template = square crop of side ``ceil(sqrt(w h) * 2)`` resized to 128,
 search = side ``ceil(sqrt(w h) * 4)`` resized to 256, zero padding outside the image; blob =
 ``(pixel - 255 mean) / (255 std)`` with the ImageNet mean/std applied to the channels **as
-stored (BGR)**, with OpenCV's (quaternion) per-channel scale, see :func:`blob_scale`; the score map is
+stored (BGR)**, with OpenCV's per-channel scale, see :func:`blob_scale`; the score map is
 multiplied by a centred 16x16 Hann window and its argmax cell gives the box
 ``((i + offset) / 16, size)`` in crop units. With ``opencv_rounding`` the state is kept as
 OpenCV's integer rectangle (floor), which is what parity with ``cv2.TrackerVit`` needs on
-10-pixel targets.
+10-pixel targets. ``opencv_port``: the release reproduced; OpenCV 5.1 changed the blob scale to
+element-wise and keeps every side at 10 px or more (docs/decisions/trackers.md).
 
 Confidence (``confidence``): by default the network's own score, the sigmoid peak of the score
 map, as the paper does for a tracker whose output map is too coarse for its window score
@@ -41,21 +42,23 @@ _STD_RGB = np.array([0.229, 0.224, 0.225])
 _FEAT = 16
 
 
-def blob_scale(normalisation: str) -> tuple[np.ndarray, np.ndarray, bool]:
+def blob_scale(normalisation: str, opencv_port: str = "5.0") -> tuple[np.ndarray, np.ndarray, bool]:
     """Per-channel ``(mean, scale, swap_rb)`` with ``blob = (pixel - mean) * scale``.
 
-    ``opencv``: what ``cv2.TrackerVit`` computes. It sets ``scalefactor = (1.0 / std) / 255``
-    on a ``cv::Scalar``, and OpenCV's ``double / Scalar`` is a *quaternion* inverse,
-    ``conj(s) / |s|^2``, so the scale is ``(s0, -s1, -s2) / (|s|^2 255)`` on the BGR channels
-    as stored, with the RGB means subtracted from B, G, R in that order. Verified against the
-    cv2 tracking score (tests/test_trackers_real.py). ``imagenet``: the textbook ImageNet
-    normalisation on RGB, ``(pixel / 255 - mean) / std``.
+    ``opencv``: what ``cv2.TrackerVit`` computes, on the BGR channels as stored with the RGB
+    means subtracted in B, G, R order. It sets ``scalefactor = (1.0 / std) / 255`` on a
+    ``cv::Scalar``; up to OpenCV 5.0 (``opencv_port`` "5.0") ``double / Scalar`` is a
+    *quaternion* inverse, ``conj(s) / |s|^2``, so the scale is ``(s0, -s1, -s2) / (|s|^2 255)``;
+    from 5.1 it is element-wise, ``1 / (s 255)``. Both verified against the cv2 tracking score
+    (tests/test_trackers_onnx.py). ``imagenet``: the textbook ImageNet normalisation on RGB,
+    ``(pixel / 255 - mean) / std``.
     """
-    if normalisation == "opencv":
+    mean = (_MEAN_RGB * 255.0).astype(np.float32)
+    if normalisation == "opencv" and opencv_port == "5.0":
         scale = np.array([_STD_RGB[0], -_STD_RGB[1], -_STD_RGB[2]]) / (np.sum(_STD_RGB ** 2) * 255.0)
-        return (_MEAN_RGB * 255.0).astype(np.float32), scale.astype(np.float32), False
-    if normalisation == "imagenet":
-        return (_MEAN_RGB * 255.0).astype(np.float32), (1.0 / (_STD_RGB * 255.0)).astype(np.float32), True
+        return mean, scale.astype(np.float32), False
+    if normalisation in ("opencv", "imagenet"):
+        return mean, (1.0 / (_STD_RGB * 255.0)).astype(np.float32), normalisation == "imagenet"
     raise ValueError(f"vittrack: normalisation must be 'opencv' or 'imagenet', got {normalisation!r}")
 
 
@@ -65,11 +68,11 @@ def hann_centered(n: int) -> np.ndarray:
     return (0.5 * (1.0 - np.cos(2.0 * np.pi * k / (n + 1)))).astype(np.float32)
 
 
-def to_blob(patch_bgr: np.ndarray, size: int, normalisation: str = "opencv") -> np.ndarray:
+def to_blob(patch_bgr: np.ndarray, size: int, normalisation: str = "opencv", opencv_port: str = "5.0") -> np.ndarray:
     """Resize to ``size`` (bilinear) and normalise (see :func:`blob_scale`), NCHW float32."""
     if patch_bgr.shape[:2] != (size, size):
         patch_bgr = cv2.resize(patch_bgr, (size, size), interpolation=cv2.INTER_LINEAR)
-    mean, scale, swap = blob_scale(normalisation)
+    mean, scale, swap = blob_scale(normalisation, opencv_port)
     if swap:
         patch_bgr = patch_bgr[:, :, ::-1]
     blob = (patch_bgr.astype(np.float32) - mean) * scale
@@ -97,6 +100,9 @@ class VitTrack:
         opencv_rounding: bool = param(True, "keep integer (floored) boxes exactly like cv2.TrackerVit")
         normalisation: Literal["opencv", "imagenet"] = param(
             "opencv", "input normalisation: 'opencv' = exactly cv2.TrackerVit's blob, 'imagenet' = RGB mean/std")
+        opencv_port: Literal["5.0", "5.1"] = param(
+            "5.0", "the cv2.TrackerVit reproduced: '5.0' (up to OpenCV 5.0: the zoo's published scores) or "
+            "'5.1' (element-wise blob scale, boxes at least 10 px a side)")
 
     def __init__(self, params: "VitTrack.Params | None" = None):
         self.params = params or self.Params()
@@ -142,7 +148,7 @@ class VitTrack:
         if self.params.opencv_rounding:
             b = np.floor(b)
         patch, _, _, _ = self._crop(image, b, self.params.template_factor)
-        self._template = to_blob(patch, 128, self.params.normalisation)
+        self._template = to_blob(patch, 128, self.params.normalisation, self.params.opencv_port)
         self._box = b
 
     def track(self, image: np.ndarray, prior: tuple[float, float] | None = None) -> TrackerOutput:
@@ -157,7 +163,7 @@ class VitTrack:
             if p.opencv_rounding:
                 region = np.floor(region)
         patch, x1, y1, crop_sz = self._crop(image, region, p.search_factor)
-        out = self._net()({"template": self._template, "search": to_blob(patch, 256, p.normalisation)})
+        out = self._net()({"template": self._template, "search": to_blob(patch, 256, p.normalisation, p.opencv_port)})
         score = np.asarray(out["output1"], dtype=np.float32).reshape(_FEAT, _FEAT)
         size = np.asarray(out["output2"], dtype=np.float32).reshape(2, _FEAT, _FEAT)
         offset = np.asarray(out["output3"], dtype=np.float32).reshape(2, _FEAT, _FEAT)
@@ -173,6 +179,8 @@ class VitTrack:
                            bw * crop_sz, bh * crop_sz], dtype=np.float64)
             if p.opencv_rounding:
                 nb = np.floor(nb)
+            if p.opencv_port == "5.1":   # cv2 5.1 keeps the corner and makes each side >= 10 px
+                nb[2:] = np.maximum(nb[2:], 10.0)
             found = bool(nb[2] >= 1 and nb[3] >= 1 and np.all(np.isfinite(nb)))
         reported = nb if found else self._box          # nothing found: the previous box, confidence 0
         if found:
