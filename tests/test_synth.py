@@ -4,6 +4,7 @@ flags from generated facts, determinism, the UAV123 layout on disk and the datas
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 
 import cv2
@@ -223,6 +224,11 @@ def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkey
         assert s.image(5).shape == (H, W, 3) and s.meta["image_size"] == (W, H)
     other = SyntheticDataset(dataclasses.replace(params, seed=4))
     assert other.root != ds.root
+    assert json.loads(marker.read_text())["opencv"] == cv2.__version__
+    installed, root = cv2.__version__, ds.root
+    monkeypatch.setattr(cv2, "__version__", "99.0.0")   # its warpPerspective shows in the frames:
+    assert SyntheticDataset(params).root != root         # another OpenCV, another suite
+    monkeypatch.setattr(cv2, "__version__", installed)
     from mata_eval.data.datasets.annotations import DatasetError
 
     with pytest.raises(DatasetError, match="seed=3"):

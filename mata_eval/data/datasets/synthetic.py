@@ -65,9 +65,14 @@ class SyntheticDataset:
     def root(self) -> Path:
         if self.params.root:
             return Path(self.params.root).expanduser()
+        import cv2
+
         from ..synth import GENERATOR_VERSION
 
-        key = json.dumps({**self.generation, "version": GENERATOR_VERSION}, sort_keys=True)
+        # The frames depend on OpenCV's warpPerspective too (5.1 moved 1 grey level on some pixels
+        # of 4-17% of 5.0's frames, docs/results.md): a suite per OpenCV release, so that a run's
+        # numbers follow from the installed software, not from when the cache was filled
+        key = json.dumps({**self.generation, "version": GENERATOR_VERSION, "opencv": cv2.__version__}, sort_keys=True)
         return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def check(self) -> None:

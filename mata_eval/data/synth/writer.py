@@ -115,6 +115,7 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
         write_config_seqs(tmp, [(sp.name, sp.n_frames) for sp in specs])
         (tmp / SUITE_MARKER).write_text(json.dumps({
             "generator_version": GENERATOR_VERSION,
+            "opencv": cv2.__version__,    # its warpPerspective's rounding shows in the frames
             "suite": suite,
             "sequences": [dataclasses.asdict(sp) for sp in specs],
             "attributes": {sp.name: sorted(r.attributes) for sp, r in zip(specs, results)},
