@@ -6,10 +6,15 @@ from __future__ import annotations
 
 import ast
 import re
-import tomllib
+import sys
 from pathlib import Path
 
 import pytest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10 (a Jetson's): the same parser, from the test extra
+    import tomli as tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "mata_eval"
