@@ -170,6 +170,24 @@ def test_parity_with_the_installed_opencv(models, name, seq, limit):
         assert 0.0 <= out.confidence <= 1.0 and out.score_map.shape == (16, 16)
 
 
+@pytest.mark.parametrize("name", ["vittrack", "nanotrack"])
+def test_parity_at_the_image_borders(models, name):
+    """otb_Couple's first frames moved (reflected border) so that the 25x62 px target straddles
+    each image border, or nearly touches it: cv2 5.1's TrackerVit cuts its box to the image and
+    moves a 10 px side back inside, which the sequences above never reach."""
+    cls, make = TRACKERS[name]
+    frames, gt = load_sequence(models / "sequences" / "otb_Couple", 6)
+    height, width = frames[0].shape[:2]
+    x, y, w, h = gt[0]
+    for dx, dy in [(-x - 0.3 * w, 0), (-x + 2, 0), (width - x - 0.7 * w, 0), (width - x - w - 2, 0),
+                   (0, -y - 0.3 * h), (0, height - y - 0.7 * h)]:
+        shift = np.float32([[1, 0, dx], [0, 1, dy]])
+        moved = [cv2.warpAffine(f, shift, (width, height), borderMode=cv2.BORDER_REFLECT) for f in frames]
+        init = np.array([x + dx, y + dy, w, h])
+        ours, ref, _ = run_pair(cls(cls.Params(opencv_port=INSTALLED_PORT)), make(models), moved, np.floor(init))
+        assert np.array_equal(ours, ref), (dx, dy, ours, ref)
+
+
 @pytest.mark.parametrize("name,seq,limit", PARITY_CASES)
 def test_the_default_port_reproduces_opencv_5_0(models, name, seq, limit):
     recorded = np.load(REFERENCE_5_0)

@@ -10,7 +10,8 @@ multiplied by a centred 16x16 Hann window and its argmax cell gives the box
 ``((i + offset) / 16, size)`` in crop units. With ``opencv_rounding`` the state is kept as
 OpenCV's integer rectangle (floor), which is what parity with ``cv2.TrackerVit`` needs on
 10-pixel targets. ``opencv_port``: the release reproduced; OpenCV 5.1 changed the blob scale to
-element-wise and keeps every side at 10 px or more (docs/decisions/trackers.md).
+element-wise, cuts the box to the image and keeps every side at 10 px or more
+(docs/decisions/trackers.md).
 
 Confidence (``confidence``): by default the network's own score, the sigmoid peak of the score
 map, as the paper does for a tracker whose output map is too coarse for its window score
@@ -62,6 +63,16 @@ def blob_scale(normalisation: str, opencv_port: str = "5.0") -> tuple[np.ndarray
     raise ValueError(f"vittrack: normalisation must be 'opencv' or 'imagenet', got {normalisation!r}")
 
 
+def _opencv51_box(box: np.ndarray, height: int, width: int) -> np.ndarray:
+    """What cv2.TrackerVit 5.1 makes of a box (x, y, w, h): cut to the image, then each side at
+    least 10 px, moved back inside the image where that makes it stick out (found against cv2
+    5.1 on 147 boxes at the four image borders, docs/decisions/trackers.md)."""
+    x0, y0 = max(box[0], 0.0), max(box[1], 0.0)
+    w, h = min(box[0] + box[2], width) - x0, min(box[1] + box[3], height) - y0
+    x0, y0 = min(x0, width - 10.0), min(y0, height - 10.0)
+    return np.array([x0, y0, max(min(w, width - x0), 10.0), max(min(h, height - y0), 10.0)])
+
+
 def hann_centered(n: int) -> np.ndarray:
     """OSTrack/OpenCV 'centered' Hann window: ``0.5 (1 - cos(2 pi k / (n + 1)))``, k = 1..n."""
     k = np.arange(1, n + 1, dtype=np.float64)
@@ -102,7 +113,7 @@ class VitTrack:
             "opencv", "input normalisation: 'opencv' = exactly cv2.TrackerVit's blob, 'imagenet' = RGB mean/std")
         opencv_port: Literal["5.0", "5.1"] = param(
             "5.0", "the cv2.TrackerVit reproduced: '5.0' (up to OpenCV 5.0: the zoo's published scores) or "
-            "'5.1' (element-wise blob scale, boxes at least 10 px a side)")
+            "'5.1' (element-wise blob scale, boxes cut to the image, at least 10 px a side)")
 
     def __init__(self, params: "VitTrack.Params | None" = None):
         self.params = params or self.Params()
@@ -179,8 +190,8 @@ class VitTrack:
                            bw * crop_sz, bh * crop_sz], dtype=np.float64)
             if p.opencv_rounding:
                 nb = np.floor(nb)
-            if p.opencv_port == "5.1":   # cv2 5.1 keeps the corner and makes each side >= 10 px
-                nb[2:] = np.maximum(nb[2:], 10.0)
+            if p.opencv_port == "5.1":
+                nb = _opencv51_box(nb, *image.shape[:2])
             found = bool(nb[2] >= 1 and nb[3] >= 1 and np.all(np.isfinite(nb)))
         reported = nb if found else self._box          # nothing found: the previous box, confidence 0
         if found:
