@@ -148,7 +148,7 @@ def test_relaxed_backbone_embeds_the_exemplar(models):
     assert np.abs(ours - ref).max() < 1e-3 * np.abs(ref).max()
 
 
-# OpenCV 5.1 changed both trackers (the blob scale and a 10 px minimum side in TrackerVit; the
+# OpenCV 5.1 changed both trackers (the blob scale and the box's bounds in TrackerVit; the
 # search side, the size sum and the scale penalty in TrackerNano): each of ours reproduces either
 # release (``opencv_port``). The installed cv2 is compared live with its port; the default port,
 # 5.0, also with boxes recorded from OpenCV 5.0 (tests/opencv_tracker_reference.py).

@@ -293,7 +293,8 @@ class NanoTrack:
             self._pos = np.array([prior[0], prior[1]], dtype=f32)
         port50 = p.opencv_port == "5.0"
         size_sum = self._size[0] + self._size[1]
-        size_sum = f32(int(size_sum)) if port50 else size_sum  # cv2 5.0 truncates the sum
+        if port50:
+            size_sum = f32(int(size_sum))                       # cv2 5.0 truncates the sum
         wc = self._size[0] + f32(p.context_amount) * f32(size_sum)
         hc = self._size[1] + f32(p.context_amount) * f32(size_sum)
         sz = np.sqrt(wc * hc)
