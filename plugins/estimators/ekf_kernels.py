@@ -225,20 +225,16 @@ def _box_side(x):
 # --- small dense algebra ------------------------------------------------------------------------
 
 @_njit
-def _solve_into(S, B, out):
-    """out = S^-1 B (S m x m, B m x k) by LU with partial pivoting, as LAPACK's gesv does;
-    a zero pivot gives inf / nan (held by the tick) where numpy would raise. The loops run
-    over whole rows of B (independent sums, which the compiler vectorises); ``out`` may have
-    more columns than B (zero padding, solved along)."""
+def _solve_in_place(S, out):
+    """out = S^-1 out (S m x m, out m x k) by LU with partial pivoting, as LAPACK's gesv does;
+    a zero pivot gives inf / nan (held by the tick) where numpy would raise. Each column of
+    ``out`` is solved on its own (the same operations, so the same bits, as alone); the loops
+    run over whole rows (independent sums, which the compiler vectorises)."""
     m, k = S.shape[0], out.shape[1]
     A = np.empty((m, m))
     for i in range(m):
         for j in range(m):
             A[i, j] = S[i, j]
-        for j in range(B.shape[1]):
-            out[i, j] = B[i, j]
-        for j in range(B.shape[1], k):
-            out[i, j] = 0.0
     for c in range(m):
         p = c
         for r in range(c + 1, m):
@@ -271,34 +267,59 @@ def _solve_into(S, B, out):
 
 
 @_njit
-def _joseph_block(x, P, z, s, R):
-    """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z)).
-
-    With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
-    P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. The
-    loops run over rows (independent sums, which the compiler vectorises), of K^T and its
-    products padded to a multiple of 8 when that takes one zero column (15 states: 16, which
-    the vector loops cover with no scalar remainder; 0.2 us less per 9-value update here)."""
-    n, m = x.shape[0], z.shape[0]
-    nw = n + 1 if n % 8 == 7 else n     # the row width of K^T, W^T and T
-    B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
-    S = np.empty((m, m))
+def _gain(B, s, R, f, nu, S, Kt):
+    """S = B E^T + f R and K^T = S^-1 B (B = E P, the measured rows s.. of P), written into S
+    and Kt's first n columns; Kt's last column is S^-1 nu (nu: the innovation). Returns the
+    squared Mahalanobis innovation nu^T S^-1 nu."""
+    m, n = B.shape
     for a in range(m):
         for b in range(m):
-            S[a, b] = B[a, s + b] + R[a, b]
+            S[a, b] = B[a, s + b] + f * R[a, b]
+        for j in range(n):
+            Kt[a, j] = B[a, j]
+        Kt[a, n] = nu[a]
+    _solve_in_place(S, Kt)              # S symmetric: K^T = S^-1 B
+    d2 = 0.0
+    for a in range(m):
+        d2 += nu[a] * Kt[a, n]
+    return d2
+
+
+@_njit
+def _joseph_block(x, P, z, s, R, chi2):
+    """ekf_math.joseph_update_block in place for the state entries s .. s+m-1 (m = len(z)),
+    with R inflated by d2 / chi2 where the innovation's squared Mahalanobis distance d2 under R
+    exceeds chi2 > 0 (ekf_math.robust_noise). Returns d2 (under R, before inflation).
+
+    With B = E P (the measured rows), S = B E^T + R and K^T = S^-1 B, the Joseph form is
+    P - K B - B^T K^T + K S K^T = P + T + T^T with T = (K S / 2 - B^T) K^T, symmetrised. K^T
+    carries one more column, S^-1 nu, which gives d2 from the same solve; for 15 states its rows
+    are 16 wide, a multiple of the vector width, so the vector loops over rows (independent sums,
+    which the compiler vectorises) have no scalar remainder. W^T and T carry that column along,
+    unread."""
+    n, m = x.shape[0], z.shape[0]
+    nw = n + 1                          # the row width of K^T, W^T and T
+    B = P[s:s + m]                      # E P: the measured rows (a view: P is written last)
+    nu = np.empty(m)
+    for a in range(m):
+        nu[a] = z[a] - x[s + a]
+    S = np.empty((m, m))
     Kt = np.empty((m, nw))
-    _solve_into(S, B, Kt)               # K^T = S^-1 B (S symmetric)
-    Wt = np.zeros((m, nw))              # (K S / 2 - B^T)^T = S^T K^T / 2 - B
+    d2 = _gain(B, s, R, 1.0, nu, S, Kt)
+    if chi2 > 0.0 and d2 > chi2:
+        _gain(B, s, R, d2 / chi2, nu, S, Kt)
+    Wt = np.empty((m, nw))              # (K S / 2 - B^T)^T = S^T K^T / 2 - B
     for a in range(m):
         for j in range(n):
             Wt[a, j] = -B[a, j]
+        Wt[a, n] = 0.0
         for b in range(m):
             f = 0.5 * S[b, a]
             for j in range(nw):
                 Wt[a, j] += f * Kt[b, j]
     dx = np.zeros(n)
     for a in range(m):
-        r = z[a] - x[s + a]
+        r = nu[a]
         for j in range(n):
             dx[j] += Kt[a, j] * r
     T = np.zeros((n, nw))
@@ -311,16 +332,16 @@ def _joseph_block(x, P, z, s, R):
         x[i] += dx[i]
         for j in range(i, n):
             P[i, j] = P[j, i] = 0.5 * (P[i, j] + P[j, i]) + (T[i, j] + T[j, i])
+    return d2
 
 
 @_njit
 def _mahalanobis2(nu, S):
     m = nu.shape[0]
-    b = np.empty((m, 1))
-    for a in range(m):
-        b[a, 0] = nu[a]
     y = np.empty((m, 1))
-    _solve_into(S, b, y)
+    for a in range(m):
+        y[a, 0] = nu[a]
+    _solve_in_place(S, y)
     acc = 0.0
     for a in range(m):
         acc += nu[a] * y[a, 0]
@@ -382,7 +403,7 @@ def _update_motion(x, P, cfg, floor, H, C, mode):
             for j in range(9):
                 R[i, j] = 0.5 * (C[i, j] + C[j, i])
         R[i, i] += max(floor[i] - R[i, i], 0.0)
-    _joseph_block(x, P, h, 4, R)
+    _joseph_block(x, P, h, 4, R, 0.0)
 
 
 @_njit
@@ -611,29 +632,13 @@ def _consistent(x, P, cfg, z):
 @_njit
 def _update_box(x, P, cfg, z, conf):
     """HomographyEKF._box_noise, the chi2 inflation (ekf_math.robust_noise) and the 4-corner
-    update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation
-    (NaN when neither chi2_gate nor q_adapt needs it)."""
+    update. Returns the squared Mahalanobis innovation d2 under the box's R before inflation."""
     r = _box_r(x, cfg, conf)
     R = np.zeros((4, 4))
     for a in range(4):
         R[a, a] = r
     inflate = cfg[C_GATING] != 0.0 and cfg[C_CHI2] != 0.0
-    d2 = np.nan
-    if inflate or cfg[C_Q_ADAPT] != 0.0:
-        nu = np.empty(4)
-        S = np.empty((4, 4))
-        for a in range(4):
-            nu[a] = z[a] - x[a]
-            for b in range(4):
-                S[a, b] = P[a, b] + R[a, b]
-        d2 = _mahalanobis2(nu, S)
-        if inflate and d2 > cfg[C_CHI2]:
-            f = d2 / cfg[C_CHI2]
-            for a in range(4):
-                for b in range(4):
-                    R[a, b] *= f
-    _joseph_block(x, P, z, 0, R)
-    return d2
+    return _joseph_block(x, P, z, 0, R, cfg[C_CHI2] if inflate else 0.0)
 
 
 @_njit
@@ -735,19 +740,13 @@ def _gate(cfg, g, det, x, P, z):
 
 
 @_njit
-def tick(cfg, x0, P0, g0, dt, H, C, motion, dets, n_dets, x, P, g):
+def tick(cfg, x, P, g, dt, H, C, motion, dets, n_dets):
     """One tick (HomographyEKF._tick_state): motion update (before or after the prediction),
     velocity prior and prediction when dt > 0, then each box dets[:n_dets] (rows D_*, in capture
-    order) through the confidence gate and, when used, its update. Writes the new state x, P and
-    gate memory g; returns False when the result is not finite (the caller then holds the
-    previous state)."""
-    n = x0.shape[0]
-    for i in range(n):
-        x[i] = x0[i]
-        for j in range(n):
-            P[i, j] = P0[i, j]
-    for i in range(g0.shape[0]):
-        g[i] = g0[i]
+    order) through the confidence gate and, when used, its update. Updates the state x, P and
+    gate memory g in place (copies of the previous state's); returns False when the result is
+    not finite (the caller then holds the previous state)."""
+    n = x.shape[0]
     g[G_USED_RELATIVE] = 0.0
     floor, q = cfg[C_FLOOR:C_Q], cfg[C_Q:]
     use_h = motion != MOTION_NONE and _valid_motion(H, C, motion)

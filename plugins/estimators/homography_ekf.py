@@ -353,8 +353,6 @@ class HomographyEKF:
                 tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, follow_consistent=p.follow_consistent,
                 floor=self._h_floor, q=self._q)
             self._state, self._gate0 = kernels.PackedState, kernels.new_gate(CONFIDENCE_HISTORY)
-            n = len(self._q)
-            self._sizes = n, (n, n), len(self._gate0)   # of a state's x, P and gate memory
             self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
             self._det_row = kernels.DET_ROW, kernels.DET_SIZE
             self._no_h = np.zeros((3, 3))
@@ -493,9 +491,8 @@ class HomographyEKF:
         for i, d in enumerate(dets):
             box = d.value.box
             struct.pack_into(row, self._dets, i * size, box.x, box.y, box.w, box.h, d.value.confidence)
-        nx, nP, ng = self._sizes
-        x, P, g = np.empty(nx), np.empty(nP), np.empty(ng)
-        if self._kernel(self._cfg, b.x, b.P, b.g, tick.dt, H, C, motion, self._dets, len(dets), x, P, g):
+        x, P, g = b.x.copy(), b.P.copy(), b.g.copy()   # the kernel updates them in place
+        if self._kernel(self._cfg, x, P, g, tick.dt, H, C, motion, self._dets, len(dets)):
             return self._state(x, P, g)
         return b                                # not finite: a degenerate input, held
 
@@ -688,8 +685,8 @@ class HomographyEKF:
         """The estimate of state ``s`` under the rules that read the tracker's newest box: what
         is fed back (:meth:`_feedback`) and ``fresh_output``, built once (an Estimate costs about
         1 us, a tenth of the tick: issue 18)."""
-        box = _box(s)
-        centre = (box.x + box.w / 2.0, box.y + box.h / 2.0)   # box.center, without the properties
+        x, y, w, h = xywh = _box_values(s)     # the Box is built only where it is returned
+        centre = (x + w / 2.0, y + h / 2.0)    # box.center, as its properties compute it
         age = self._ticks[-1].t - self._newest.t_capture     # of the tracker's newest box (s)
         inside = self._trust and _shift(centre, self._newest.value.box) <= 0.5   # trusted, contains it
         feedback, search = self._feedback(centre, age, inside)
@@ -698,9 +695,9 @@ class HomographyEKF:
             # and at LTP the filter's centre is further from the truth than it (docs/mata.md); a
             # box that jumps away from the estimate is still smoothed. What is fed back stays the
             # filter's search centre.
-            box = self._newest.value.box
             search = (centre if search is None else search) if feedback else None
-        return Estimate(box, s.P.copy(), feedback, search)
+            return Estimate(self._newest.value.box, s.P.copy(), feedback, search)
+        return Estimate(Box(*xywh), s.P.copy(), feedback, search)
 
     def _feedback(self, centre: tuple[float, float], age: float,
                   inside: bool) -> tuple[bool, tuple[float, float] | None]:
@@ -757,10 +754,15 @@ class HomographyEKF:
 
 def _box(s: FilterState) -> Box:
     """The box from the corner states; a degenerate box keeps its centre with >= 1 px sides."""
+    return Box(*_box_values(s))
+
+
+def _box_values(s: FilterState) -> tuple[float, float, float, float]:
+    """:func:`_box`'s x, y, w, h (a Box costs half a microsecond: issue 18)."""
     x1, y1, x2, y2 = s.x[:4].tolist()
     w, h = x2 - x1, y2 - y1
     w, h = (1.0 if w < 1.0 else w), (1.0 if h < 1.0 else h)   # max(w, 1.0), without a call
-    return Box(0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h)
+    return 0.5 * (x1 + x2) - w / 2.0, 0.5 * (y1 + y2) - h / 2.0, w, h
 
 
 def _shift(centre: tuple[float, float], b: Box) -> float:
