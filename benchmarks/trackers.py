@@ -27,8 +27,6 @@ import cv2
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-# the cv2.TrackerVit / TrackerNano release installed (5.1 changed both: docs/decisions/trackers.md)
-OPENCV_PORT = "5.1" if tuple(int(v) for v in cv2.__version__.split(".")[:2]) >= (5, 1) else "5.0"
 SEQUENCES = ("uav123_10fps/wakeboard7", "uav123_10fps/wakeboard10", "vot15_bag", "otb_Couple")
 
 
@@ -155,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"shared data not found at {data} (set MATA_SHARED_DATA)", file=sys.stderr)
         return 2
     cv2.setNumThreads(1)
+    from mata_eval_plugins.trackers.vittrack import installed_opencv_port   # the parity column's port
+
     seqs = {s.split("/")[-1]: load_sequence(data / "sequences" / s, args.frames or None) for s in SEQUENCES}
     names = [n.strip() for n in args.trackers.split(",") if n.strip()]
     rows = []
@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         line = {"tracker": name}
         ms_720 = []
         for seq, (frames, gt) in seqs.items():
-            boxes, conf, ms = run_ours(make_ours(name, OPENCV_PORT), frames, gt[0])
+            boxes, conf, ms = run_ours(make_ours(name, installed_opencv_port()), frames, gt[0])
             line[seq] = float(iou(boxes, gt).mean())
             if frames[0].shape[:2] == (720, 1280):
                 ms_720.append(ms)

@@ -225,10 +225,10 @@ def test_synthetic_dataset_plugin_generates_once_into_the_cache(tmp_path, monkey
     other = SyntheticDataset(dataclasses.replace(params, seed=4))
     assert other.root != ds.root
     assert json.loads(marker.read_text())["opencv"] == cv2.__version__
-    installed, root = cv2.__version__, ds.root
-    monkeypatch.setattr(cv2, "__version__", "99.0.0")   # its warpPerspective shows in the frames:
-    assert SyntheticDataset(params).root != root         # another OpenCV, another suite
-    monkeypatch.setattr(cv2, "__version__", installed)
+    root = ds.root                                       # (a property: under the installed cv2)
+    with monkeypatch.context() as m:                     # its warpPerspective shows in the frames:
+        m.setattr(cv2, "__version__", "99.0.0")          # another OpenCV, another suite
+        assert SyntheticDataset(params).root != root
     from mata_eval.data.datasets.annotations import DatasetError
 
     with pytest.raises(DatasetError, match="seed=3"):

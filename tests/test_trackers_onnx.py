@@ -14,7 +14,7 @@ from mata_eval.types import Box
 from mata_eval_plugins.trackers import nanotrack as nano_mod
 from mata_eval_plugins.trackers.model_files import ModelFileNotFound, resolve_model
 from mata_eval_plugins.trackers.nanotrack import NanoTrack, relax_spatial_dims
-from mata_eval_plugins.trackers.vittrack import VitTrack, blob_scale
+from mata_eval_plugins.trackers.vittrack import VitTrack, blob_scale, installed_opencv_port
 
 pytest.importorskip("onnxruntime")
 
@@ -152,7 +152,7 @@ def test_relaxed_backbone_embeds_the_exemplar(models):
 # search side, the size sum and the scale penalty in TrackerNano): each of ours reproduces either
 # release (``opencv_port``). The installed cv2 is compared live with its port; the default port,
 # 5.0, also with boxes recorded from OpenCV 5.0 (tests/opencv_tracker_reference.py).
-INSTALLED_PORT = "5.1" if tuple(int(v) for v in cv2.__version__.split(".")[:2]) >= (5, 1) else "5.0"
+INSTALLED_PORT = installed_opencv_port()
 REFERENCE_5_0 = Path(__file__).parent / "data" / "opencv50_trackers.npz"
 TRACKERS = {"vittrack": (VitTrack, cv2_vit), "nanotrack": (NanoTrack, cv2_nano)}
 PARITY_SEQUENCES = {"vittrack": [("uav123_10fps/wakeboard10", 60), ("vot15_bag", 40)],

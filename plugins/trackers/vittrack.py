@@ -43,6 +43,12 @@ _STD_RGB = np.array([0.229, 0.224, 0.225])
 _FEAT = 16
 
 
+def installed_opencv_port() -> str:
+    """The ``opencv_port`` whose boxes the installed OpenCV's cv2.TrackerVit and cv2.TrackerNano
+    give (5.1 changed both: docs/decisions/trackers.md), for parity checks against them."""
+    return "5.1" if tuple(int(v) for v in cv2.__version__.split(".")[:2]) >= (5, 1) else "5.0"
+
+
 def blob_scale(normalisation: str, opencv_port: str = "5.0") -> tuple[np.ndarray, np.ndarray, bool]:
     """Per-channel ``(mean, scale, swap_rb)`` with ``blob = (pixel - mean) * scale``.
 
