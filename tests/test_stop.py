@@ -131,3 +131,26 @@ def test_the_workers_die_with_the_driver(tmp_path, sig, rc):
     assert proc.returncode == rc
     assert time.monotonic() - t0 < 5
     assert _wait_for(lambda: not any(_alive(w) for w in workers), 5), "a worker outlived the driver"
+
+
+def test_a_stop_signal_inside_deferred_is_raised_between_waits_not_inside():
+    """Around a process pool the driver's handler only records the signal (an exception raised
+    inside the pool's code once left its manager thread unjoinable, and one raised in a fork hook
+    let a worker live on); check() raises it, and so does leaving the block."""
+    from mata_eval.core.errors import Interrupted
+    from mata_eval.run import stop
+
+    reached = []
+    with stop.stop_on_signals():
+        with pytest.raises(Interrupted):
+            with stop.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(1000):      # bytecodes run: the handler has run, and raised nothing
+                    pass
+                reached.append(True)
+                with pytest.raises(Interrupted):
+                    stop.check()
+    assert reached
+    with stop.stop_on_signals(), pytest.raises(Interrupted):   # outside deferred(): at once
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(1)

@@ -107,33 +107,39 @@ class LocalExecutor:
 
     @staticmethod
     def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> list[Task]:
-        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool. On any
-        exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the workers
-        terminated, so that it propagates at once (leaving the pool would wait for every task)."""
+        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool. A stop
+        signal is taken between two waits (:func:`stop.deferred`), never inside the pool's own
+        code. On any exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the
+        workers killed, so that it propagates at once (leaving the pool would wait for every
+        task). SIGKILL, not SIGTERM: a worker forked in the same instant runs the driver's
+        handler until its initializer resets it, and would swallow the signal and live on while
+        the pool's shutdown waits for the tasks queued to it. A worker's SIGTERM is the default
+        action anyway, and results are written atomically."""
         lost = []
         context = multiprocessing.get_context()
         parent = None if context.get_start_method() == "forkserver" else os.getpid()
-        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
-                                   initargs=(parent,))
-        try:
-            futures = {pool.submit(run_task, exp, task): task for task in tasks}
-            waiting = set(futures)
-            while waiting:
-                finished, waiting = wait(waiting, timeout=stop.POLL_S, return_when=FIRST_COMPLETED)
-                stop.check()
-                for fut in finished:
-                    try:
-                        results = fut.result()
-                    except BrokenProcessPool:
-                        lost.append(futures[fut])
-                        continue
-                    done(futures[fut], results)
-        except BaseException:
-            for w in list((pool._processes or {}).values()):  # no public handle before Python 3.14
-                w.terminate()
-            raise
-        finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
-            pool.shutdown(wait=True, cancel_futures=True)
+        with stop.deferred():
+            pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
+                                       initargs=(parent,))
+            try:
+                futures = {pool.submit(run_task, exp, task): task for task in tasks}
+                waiting = set(futures)
+                while waiting:
+                    finished, waiting = wait(waiting, timeout=stop.POLL_S, return_when=FIRST_COMPLETED)
+                    stop.check()
+                    for fut in finished:
+                        try:
+                            results = fut.result()
+                        except BrokenProcessPool:
+                            lost.append(futures[fut])
+                            continue
+                        done(futures[fut], results)
+            except BaseException:
+                for w in list((pool._processes or {}).values()):  # no public handle before Python 3.14
+                    w.kill()
+                raise
+            finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
+                pool.shutdown(wait=True, cancel_futures=True)
         return lost
 
 
