@@ -124,21 +124,30 @@ def grid_points(width: int, height: int, cols: int, rows: int) -> np.ndarray:
     return np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2).astype(np.float32)
 
 
+#: OpenCV's robust estimators that ``ransac_method`` names: classic RANSAC, and two of its USAC
+#: framework (SPRT verification, local optimisation; USAC_MAGSAC scores by MAGSAC++), which
+#: OpenCV offers for the homography and the affine model only
+RANSAC_METHODS = {"ransac": cv2.RANSAC, "usac_fast": cv2.USAC_FAST, "usac_magsac": cv2.USAC_MAGSAC}
+USAC_MODELS = ("homography", "affine")
+
+
 def _ransac(src: np.ndarray, dst: np.ndarray, model: str, threshold: float, max_iters: int,
-            confidence: float) -> tuple[np.ndarray | None, np.ndarray] | None:
-    """OpenCV's RANSAC for the model (its internal RNG has a fixed seed, so the result is
-    deterministic): (the homography it fits, or None for the other models, whose estimate is
-    not used; the inlier mask), or None when it fails. OpenCV's homography is its final fit on
-    all the inliers: a DLT refined by Levenberg-Marquardt on the reprojection error in the
-    second image, the ML fit under destination noise that the covariance assumes."""
+            confidence: float, method: str = "ransac") -> tuple[np.ndarray | None, np.ndarray] | None:
+    """OpenCV's robust estimator ``method`` (RANSAC_METHODS) for the model (its internal RNG has
+    a fixed seed, so the result is deterministic): (the homography it fits, or None for the
+    other models, whose estimate is not used; the inlier mask), or None when it fails. OpenCV's
+    RANSAC homography is its final fit on all the inliers: a DLT refined by Levenberg-Marquardt
+    on the reprojection error in the second image, the ML fit under destination noise that the
+    covariance assumes."""
     s, d = src.astype(np.float32), dst.astype(np.float32)
     if model == "homography":
-        H, mask = cv2.findHomography(s, d, cv2.RANSAC, threshold, maxIters=max_iters, confidence=confidence)
+        H, mask = cv2.findHomography(s, d, RANSAC_METHODS[method], threshold, maxIters=max_iters,
+                                     confidence=confidence)
         ok = H is not None
     else:
         estimator = {"affine": cv2.estimateAffine2D, "similarity": cv2.estimateAffinePartial2D,
                      "translation": cv2.estimateTranslation2D}[model]
-        M, mask = estimator(s, d, method=cv2.RANSAC, ransacReprojThreshold=threshold,
+        M, mask = estimator(s, d, method=RANSAC_METHODS[method], ransacReprojThreshold=threshold,
                             maxIters=max_iters, confidence=confidence)
         ok, H = M is not None, None
     if not ok or mask is None:
@@ -148,22 +157,24 @@ def _ransac(src: np.ndarray, dst: np.ndarray, model: str, threshold: float, max_
 
 def robust_fit(src: np.ndarray, dst: np.ndarray, model: str = "homography", threshold: float = 3.0,
                min_inliers: int = 20, max_iters: int = 2000, confidence: float = 0.995,
-               image_size: tuple[int, int] | None = None, refit: bool = True) -> Motion:
+               image_size: tuple[int, int] | None = None, refit: bool = True,
+               method: str = "ransac") -> Motion:
     """RANSAC inlier set, least-squares refit on the inliers (RANSAC's own output is not the
     converged ML fit the covariance formula assumes: reference notes section 4.3), residual
     noise and covariance. ``src`` are exact points, ``dst`` their tracked positions (pixels).
     ``refit=False``: the homography is RANSAC's own fit (:func:`_ransac`), one fit per frame,
     0.14 ms less at 1280x720 but not the default (docs/decisions/egomotion.md); the other
-    models are always a least-squares solve on the inliers. Returns ``Motion.invalid()`` when
-    there are too few points or inliers, the fit fails, the points are degenerate, or (with
-    ``image_size = (W, H)``) an image corner maps to infinity."""
+    models are always a least-squares solve on the inliers. ``method``: the robust estimator
+    (RANSAC_METHODS; the USAC ones for the homography and the affine model only). Returns
+    ``Motion.invalid()`` when there are too few points or inliers, the fit fails, the points
+    are degenerate, or (with ``image_size = (W, H)``) an image corner maps to infinity."""
     src = np.asarray(src, dtype=float).reshape(-1, 2)
     dst = np.asarray(dst, dtype=float).reshape(-1, 2)
     need = max(int(min_inliers), hc.min_points(model) + 1)
     if len(src) < need:
         return Motion.invalid()
     try:
-        fit = _ransac(src, dst, model, threshold, max_iters, confidence)
+        fit = _ransac(src, dst, model, threshold, max_iters, confidence, method)
         if fit is None or fit[1].sum() < need:
             return Motion.invalid()
         H, inl = fit
@@ -215,6 +226,10 @@ class GridLK:
         fb_threshold: float | None = param(
             None, "forward-backward check: drop points whose backward track misses the start by "
                   "more than this (px of the shrunk image); null = no check")
+        ransac_method: Literal["ransac", "usac_fast", "usac_magsac"] = param(
+            "ransac", "robust estimator: OpenCV's RANSAC, or its USAC_FAST or USAC_MAGSAC (homography "
+                      "and affine models; about as accurate, and bounded in cost where few points "
+                      "are inliers: docs/decisions/egomotion.md)")
         ransac_threshold: float = param(3.0, "RANSAC inlier threshold (px, full resolution)")
         ransac_iters: int = param(2000, "RANSAC iterations at most")
         ransac_confidence: float = param(0.995, "RANSAC confidence")
@@ -240,6 +255,9 @@ class GridLK:
                 raise ValueError("ransac_threshold must be > 0, ransac_iters >= 1, 0 < ransac_confidence < 1")
             if self.min_inliers < 1:
                 raise ValueError(f"min_inliers must be >= 1, got {self.min_inliers}")
+            if self.ransac_method != "ransac" and self.model not in USAC_MODELS:
+                raise ValueError(f"ransac_method {self.ransac_method} needs model homography or affine "
+                                 f"(OpenCV's USAC has no {self.model} estimator); use ransac")
 
     def __init__(self, params: Params | None = None):
         self.params = params if params is not None else self.Params()
@@ -275,7 +293,8 @@ class GridLK:
         finite = np.all(np.isfinite(dst), axis=1)
         motion = robust_fit(src[finite], dst[finite], p.model, p.ransac_threshold, p.min_inliers,
                             p.ransac_iters, p.ransac_confidence,
-                            image_size=(self._full_shape[1], self._full_shape[0]), refit=p.refit)
+                            image_size=(self._full_shape[1], self._full_shape[0]), refit=p.refit,
+                            method=p.ransac_method)
         return flag_unchanged(motion, prev_plain, self._prev_plain, p.downscale)
 
     def _take(self, image: object) -> np.ndarray | None:
