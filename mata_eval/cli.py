@@ -74,7 +74,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment)
     if args.output:
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
-    print(f"experiment {exp.name} ({exp.path}): {len(exp.runs)} run(s) -> {exp.output}", flush=True)
+    count = f"{len(set(args.runs))} of {len(exp.runs)}" if args.runs else str(len(exp.runs))
+    print(f"experiment {exp.name} ({exp.path}): {count} run(s) -> {exp.output}", flush=True)
     checked = _preflight(exp, args.runs, args.debug)
     if checked is None:
         return 2
@@ -186,6 +187,21 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(build_params(cls.Params, values)).sequences())
 
 
+def _run_dataset(results_dir: str, name: str) -> dict[str, Any]:
+    """The dataset parameters a mata-eval run folder was made with (its manifest), when its
+    dataset is plugin ``name``; empty otherwise. ``eval RUN --dataset synthetic`` without
+    ``--set`` then scores against the run's own suite instead of generating the default one."""
+    from .run.results import read_manifest
+
+    try:
+        dataset = ((read_manifest(Path(results_dir)) or {}).get("config") or {}).get("dataset")
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(dataset, dict) or dataset.get("name") != name:
+        return {}
+    return {k: v for k, v in dataset.items() if k != "name" and v is not None}
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score one or more results folders against one dataset, in one process: the annotations
     are read once and every folder is one row of the table."""
@@ -204,6 +220,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return 2
     all_scores = []
     try:
+        if args.root is None and not sets and (run_sets := _run_dataset(args.results_dirs[0], args.dataset)):
+            sets = run_sets   # a run folder of this dataset: the dataset as that run loaded it
+            print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
         seqs = load_dataset(args.dataset, args.root, sets)
         for results_dir in args.results_dirs:
             layout = args.layout
@@ -227,16 +246,30 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(render_table(all_scores, "terminal"))
     if args.challenges:
         print(render_table(all_scores, "terminal", table="challenges"))
+    _print_incomplete(all_scores)
     for scores in all_scores:
         where = f" in {scores.path}" if len(all_scores) > 1 else ""
-        if scores.missing:
-            print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
-                  + (" ..." if len(scores.missing) > 10 else ""))
         if scores.meta.get("unmatched_results"):
             un = scores.meta["unmatched_results"]
             print(f"{len(un)} result file(s){where} match no sequence of {args.dataset}: {', '.join(un[:10])}"
                   + (" ..." if len(un) > 10 else ""))
     return 0 if all(s.sequences for s in all_scores) else 1
+
+
+def _print_incomplete(runs: Sequence) -> None:
+    """After a table: the sequences each scored run has no results for (an interrupted run, a
+    results folder short of the dataset; its row averages only the others), and the frames it
+    skipped as unreadable (``on_bad_frame: skip``: not scored)."""
+    for scores in runs:
+        where = f" in {scores.path}" if len(runs) > 1 else ""
+        if scores.missing:
+            print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
+                  + (" ..." if len(scores.missing) > 10 else ""))
+        bad = scores.meta.get("bad_frames") or {}
+        if bad:
+            print(f"{sum(bad.values())} unreadable frame(s) skipped and not scored (on_bad_frame: skip){where}: "
+                  + ", ".join(f"{seq} ({n})" for seq, n in list(bad.items())[:10]) + (" ..." if len(bad) > 10 else "")
+                  + "; see <sequence>.bad_frames.json")
 
 
 def cmd_report(args: argparse.Namespace) -> int:
@@ -281,6 +314,7 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
                 print(text)
                 if table == "overall" and fmt == "terminal":
                     _print_deltas(runs)
+                    _print_incomplete(runs)
     if out and not args.no_plots:
         for p in plot_curves(runs, out):
             print(f"plot: {p}")

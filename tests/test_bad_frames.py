@@ -100,3 +100,21 @@ def test_skip_excludes_the_bad_frame_from_scoring_and_counts_it(clip, tmp_path):
     assert scored == [1, 1, 1, 0, 1, 1]
     assert outcome.bad_frames == (3,)
     assert any("1 bad frame" in line and "bike" in line for line in logs)
+    bad = json.loads((run / "bike.bad_frames.json").read_text())
+    assert list(bad["frames"]) == ["3"]
+
+
+def test_the_report_says_how_many_frames_were_skipped(clip, tmp_path, capsys):
+    """The table's "Excl. frames" counts frames without ground truth; frames skipped as
+    unreadable are named under the table instead, for ``eval`` and ``report`` alike (QA pass:
+    the count appeared only in the run's log line)."""
+    from mata_eval import cli
+
+    _truncate(sorted((clip / "img").glob("*.jpg"))[3])
+    _run(tmp_path, "on_bad_frame: skip\n")
+    run = tmp_path / "out" / "exp"
+    assert cli.main(["report", str(run)]) == 0
+    line = "1 unreadable frame(s) skipped and not scored (on_bad_frame: skip): bike (1)"
+    assert line in capsys.readouterr().out
+    assert cli.main(["eval", str(run), "--dataset", "folder", "--root", str(tmp_path / "data")]) == 0
+    assert line in capsys.readouterr().out

@@ -120,6 +120,43 @@ def test_bad_parameter_inside_matrix_points_at_the_matrix_line(tmp_path):
     assert "exp.yaml:8" in msg and "estimator.tau" in msg and "expected float" in msg
 
 
+@dataclass(frozen=True)
+class _Checked:
+    """Params with a cross-field check, as a plugin's ``__post_init__`` makes one."""
+    model: str = param("homography", "model")
+    method: str = param("ransac", "method")
+
+    def __post_init__(self):
+        if self.method != "ransac" and self.model != "homography":
+            raise ValueError(f"method {self.method} needs model homography")
+
+
+def test_a_cross_field_error_points_at_the_matrix_entry_that_made_the_combination(tmp_path):
+    """A plugin's own check of several keys (``__post_init__``) fails for one run of the matrix:
+    the line is that matrix entry's, not the base block's (QA pass); an invalid base block still
+    gets its own line."""
+    checked = PluginEntry("egomotion", "checked", type("checked", (), {"Params": _Checked, "name": "checked"}),
+                          "test", "checked")
+    reg = Registry({**REG.plugins, "egomotion": {"checked": checked}}, ())
+    text = """\
+        dataset: toy
+        tracker: a
+        egomotion: {name: checked%s}
+        matrix:
+          egomotion:
+            plain: {}
+            fast:
+              method: usac
+              model: affine
+        """
+    with pytest.raises(ConfigError) as err:
+        load_experiment(write(tmp_path, text % ""), reg)
+    assert "exp.yaml:7: egomotion: method usac needs model homography" in str(err.value)
+    with pytest.raises(ConfigError) as err:
+        load_experiment(write(tmp_path, text % ", model: affine, method: usac"), reg)
+    assert "exp.yaml:3: egomotion: method usac needs model homography" in str(err.value)
+
+
 def test_unknown_top_level_key(tmp_path):
     msg = error(tmp_path, "dataset: toy\ntracker: a\ntrackers: b\n")
     assert "exp.yaml:3" in msg and "unknown key" in msg and "tracker" in msg

@@ -21,7 +21,9 @@ from mata_eval.data.datasets.folder import FolderDataset
 from mata_eval.data.datasets.uav123 import ATTRIBUTES, UAV20L, UAV123, UAV123_10fps
 from mata_eval.data.datasets.uavdt import UAVDT
 from mata_eval.params import build_params
+from mata_eval.core.errors import ConfigError
 from mata_eval.core.sequence import FrameReadError
+from mata_eval.run.config import load_experiment
 
 
 def make(cls, **values):
@@ -218,3 +220,19 @@ def test_scoring_published_dtb70_results_needs_annotations_only(shared_data, tmp
     assert overall.msr == pytest.approx(0.594, abs=0.001)
     assert overall.precision20 == pytest.approx(0.790, abs=0.0015)
     assert reads == []
+
+
+@pytest.mark.parametrize("plugin", ["folder", "dtb70", "uavdt", "vtuav", "video", "rosbag"])
+@pytest.mark.parametrize("fps", ["0", "-30", ".nan", ".inf"])  # YAML spellings
+def test_a_frame_rate_that_is_not_a_positive_number_is_refused_when_the_experiment_is_loaded(
+        plugin, fps, tmp_path):
+    """``fps: 0`` passed ``validate`` and then divided by zero in the EOP plan (a traceback) or
+    failed every sequence at run time: each dataset with an ``fps`` key refuses it at load time,
+    with the file, line and key (QA pass, round 2)."""
+    path = tmp_path / "exp.yaml"
+    extra = {"video": "  path: clip.mp4\n  init_box: [1, 1, 5, 5]\n",
+             "rosbag": "  path: flight.bag\n  image_topic: /cam\n  init_box: [1, 1, 5, 5]\n"}.get(plugin, "  root: data\n")
+    path.write_text(f"name: e\ndataset:\n  name: {plugin}\n{extra}  fps: {fps}\n"
+                    "tracker: {name: kcf}\nprotocol: {name: ltp}\n")
+    with pytest.raises(ConfigError, match=rf"exp.yaml:2: dataset: {plugin}: fps: expected a positive number"):
+        load_experiment(path)

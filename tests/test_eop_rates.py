@@ -54,3 +54,22 @@ def test_a_rate_above_the_camera_rate_warns_that_it_runs_at_the_camera_rate():
     with pytest.warns(RateWarning, match=r"tracker_hz 1e\+09 .* 10 Hz"):
         starts, _ = _starts(1.0e9)
     assert starts == list(range(30))
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_run_reports_an_off_grid_rate_once_as_a_log_line_not_as_a_python_warning(tmp_path, jobs):
+    """The driver reports the rate actually run once, in its log; planning the tasks asked the
+    protocol for its timing again and printed Python's RateWarning a second time, with a
+    source path (QA pass)."""
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import run_experiment
+
+    exp_file = tmp_path / "rw.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\n"
+                        "dataset: {name: synthetic, n_sequences: 1, n_frames: 20, width: 160, height: 120}\n"
+                        "tracker: {name: kcf}\nprotocol: {name: eop, tracker_hz: 7}\n")
+    logs = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RateWarning)
+        run_experiment(load_experiment(exp_file), jobs=jobs, progress=False, log=logs.append)
+    assert sum("tracker_hz 7 is not 30 fps / n" in line for line in logs) == 1

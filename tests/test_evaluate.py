@@ -234,3 +234,25 @@ def test_real_got10k_layout_is_read(shared_data, tmp_path):
         seq = Sequence(name, res.boxes.copy())  # its own boxes as ground truth: a perfect score
         s = evaluate.score_results({name: res}, [seq])[0][name]
         assert s.msr == pytest.approx(20 / 21) and s.nt2f == 1.0
+
+
+def test_eval_of_a_run_folder_takes_the_runs_dataset_parameters(tmp_path, monkeypatch, capsys):
+    """``eval RUN --dataset synthetic`` without ``--set`` generated the default 20 x 300 suite
+    at 1280 x 720 (1.1 GB, a minute) and then failed on the frame count (QA pass): for a run
+    folder of that dataset the run's own parameters are used, and said so; given ``--set`` or
+    ``--root``, the user's parameters are used as they are."""
+    seqs = make_sequences()[:2]
+    d = tmp_path / "run"
+    for s in seqs:
+        results.write_sequence(d, s.name, s.groundtruth, "frame,scored\n" + "".join(f"{k},1\n" for k in range(len(s))), "")
+    results.write_json(d / "manifest.json", {"config": {"dataset": {"name": "synthetic", "n_frames": 60,
+                                                                    "width": 320, "root": None}}})
+    calls = []
+    monkeypatch.setattr(cli, "load_dataset", lambda name, root, extra=None: (calls.append(extra), seqs)[1])
+    assert cli.main(["eval", str(d), "--dataset", "synthetic", "--no-save"]) == 0
+    assert calls[-1] == {"n_frames": 60, "width": 320}
+    assert f"dataset synthetic with the parameters of {d / 'manifest.json'}" in capsys.readouterr().out
+    assert cli.main(["eval", str(d), "--dataset", "synthetic", "--set", "n_frames=30", "--no-save"]) == 0
+    assert calls[-1] == {"n_frames": 30}
+    assert cli.main(["eval", str(d), "--dataset", "dtb70", "--root", "/x", "--no-save"]) == 0
+    assert calls[-1] == {}

@@ -72,6 +72,31 @@ def test_preflight_finds_sequences_without_frames(tmp_path):
     assert "1 of 1 sequences have no frames: square" in problem and str(root / "square" / "img") in problem
 
 
+@pytest.mark.parametrize("first", ["0,0,0,0", "NaN,NaN,NaN,NaN", "40,40,0,20"])
+def test_a_sequence_without_a_frame_0_box_is_named_before_it_runs_and_when_it_runs(tmp_path, first):
+    """The README lets ``0,0,0,0`` mark an absent target; in frame 0 there is then nothing to
+    start the tracker from. ``validate`` said ready and the run failed with the tracker's "the
+    initial box must have a positive finite size" (QA pass): now the preflight names the
+    sequence, and a run started anyway (the Python API) fails naming it too."""
+    root = _folder_dataset(tmp_path / "data")
+    gt = root / "square" / "groundtruth_rect.txt"
+    gt.write_text(first + "\n" + gt.read_text().split("\n", 1)[1])
+    exp = load_experiment(_write(tmp_path, f"""
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        """))
+    (problem,) = plan(exp).problems
+    assert "1 of 1 sequences have no target box in frame 0 to start the tracker from" in problem
+    assert problem.endswith(": square")
+    from mata_eval.run.scheduler import run_sequence
+    from mata_eval_plugins.protocols.ltp import LTP
+    from mata_eval_plugins.trackers.kcf import KCFTracker
+
+    with pytest.raises(ValueError, match="sequence 'square': no target box in frame 0"):
+        run_sequence(exp.runs[0].dataset.create().sequences()[0], KCFTracker(), None, None, LTP(),
+                     np.random.default_rng(0))
+
+
 def test_optional_runs_are_skipped_with_a_line(tmp_path):
     root = _folder_dataset(tmp_path / "data")
     exp = load_experiment(_write(tmp_path, f"""

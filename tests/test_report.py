@@ -144,3 +144,30 @@ def test_report_cli_explains_when_it_cannot_evaluate(tmp_path, capsys):
     assert cli.main(["report", str(d)]) == 2
     err = capsys.readouterr().err
     assert "no scores.json and no manifest.json" in err and "mata-eval eval" in err
+
+
+def test_report_of_an_interrupted_run_names_the_sequences_without_results(tmp_path, capsys):
+    """A run stopped after some of its sequences: the report's row averages the finished ones
+    only, so the report says which sequences have no results, as ``eval`` does (QA pass: it
+    printed the partial row as if complete)."""
+    d, seqs = toy_run_folder(tmp_path)
+    gt = np.tile([10.0, 10.0, 20.0, 20.0], (6, 1))
+    evaluate.evaluate_run(d, seqs + [Sequence("b", gt), Sequence("c", gt)])
+    assert cli.main(["report", str(d)]) == 0
+    assert "2 sequence(s) without results: b, c" in capsys.readouterr().out
+    evaluate.evaluate_run(d, seqs)
+    assert cli.main(["report", str(d)]) == 0
+    assert "without results" not in capsys.readouterr().out
+
+
+def test_the_hz_columns_keep_one_order_after_a_round_trip_through_scores_json(tmp_path):
+    """``run`` printed tracker, egomotion, estimator; ``report`` of the same run, read back from
+    scores.json (keys sorted), printed egomotion, estimator, tracker (QA pass)."""
+    r = run_scores("mata", [20, 10], [{"FOC"}, {"FM"}])
+    freq = BlockFrequency(starts=10, camera_seconds=1.0, total_ms=250.0)
+    r = evaluate.RunScores(**{**r.__dict__, "frequencies": {"tracker": freq, "egomotion": freq, "estimator": freq}})
+    evaluate.save_scores(tmp_path, r)
+    back = evaluate.load_scores(tmp_path)
+    assert list(back.frequencies) != list(r.frequencies)   # the file's order differs ...
+    header = overview.render_table([back], "csv").splitlines()[0]
+    assert header.index("tracker") < header.index("egomotion") < header.index("estimator")  # ... the table's not

@@ -47,13 +47,19 @@ def _num(v: float) -> str:
     return "" if v is None or not math.isfinite(v) else f"{v:.6g}"
 
 
+_BLOCK_ORDER = ("tracker", "egomotion", "estimator")
+
+
 def _blocks(runs: Sequence[RunScores]) -> list[str]:
+    """The blocks with a Hz column, in one order whether the scores are fresh or read back from
+    scores.json (whose keys are sorted): tracker, egomotion, estimator, then any other."""
     seen: list[str] = []
     for r in runs:
         for b in r.frequencies:
             if b not in seen:
                 seen.append(b)
-    return seen
+    rank = {b: i for i, b in enumerate(_BLOCK_ORDER)}
+    return sorted(seen, key=lambda b: (rank.get(b, len(rank)), seen.index(b)))
 
 
 def _group_names(runs: Sequence[RunScores]) -> list[str]:

@@ -378,6 +378,10 @@ def _apply(config: dict, origin: dict, key: str, value: Any, src: KeyPath) -> No
 def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, registry: Registry) -> RunSpec:
     def where(kp: KeyPath) -> str:
         kp = tuple(kp)
+        if len(kp) == 1:   # a whole block (a plugin's cross-field check): the matrix entry that
+            entries = [src[:-1] for okp, src in origin.items() if len(okp) == 2 and okp[0] == kp[0]]
+            if entries:    # changed some of its keys in this run, not the base block's line
+                return locate(entries[-1])
         for n in range(len(kp), 0, -1):
             if kp[:n] in origin:
                 return locate(origin[kp[:n]] + kp[n:])

@@ -37,7 +37,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .scheduler import BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps
+from .scheduler import BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps, start_box
 from ..core.sequence import Sequence
 from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
 
@@ -144,7 +144,7 @@ def run_live(
     scale = {b: float(time_scale.get(b, 1.0) if isinstance(time_scale, Mapping) else time_scale) for b in BLOCKS}
     objs = {"egomotion": egomotion, "tracker": tracker, "estimator": estimator}
     active = [b for b in BLOCKS if objs[b] is not None]
-    init_box = sequence.init_box
+    init_box = start_box(sequence)
     prefetcher = _Prefetcher(sequence, prefetch)
     bus = _Bus()
     switch = sys.getswitchinterval()

@@ -67,6 +67,11 @@ def check_dataset(block: PluginBlock) -> BaseException | None:
         where = next((s.loader.looked_in for s in sequences if isinstance(s.loader, MissingFrames)), None)
         hint = f" (looked in {' or '.join(where)})" if where else ""
         return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}")
+    no_start = [s.name for s in sequences if not s.init_box.is_valid]
+    if no_start:
+        shown = ", ".join(no_start[:5]) + (f" and {len(no_start) - 5} more" if len(no_start) > 5 else "")
+        return DatasetError(f"{len(no_start)} of {len(sequences)} sequences have no target box in frame 0 to "
+                            f"start the tracker from (first ground-truth line absent, NaN or of zero size): {shown}")
     return None
 
 

@@ -152,6 +152,18 @@ def read_json(path: Path) -> Any:
         raise CorruptFile(f"{path}: not valid JSON ({exc}); delete it (or rerun with --force)") from None
 
 
+def read_bad_frames(run_dir: Path) -> dict[str, int]:
+    """Sequence -> how many of its frames were skipped as unreadable and not scored
+    (``<seq>.bad_frames.json``, ``on_bad_frame: skip``)."""
+    out = {}
+    for p in sorted(Path(run_dir).glob("*.bad_frames.json")):
+        data = read_json(p)
+        if not isinstance(data, dict) or not isinstance(data.get("frames"), dict):
+            raise CorruptFile(f"{p}: expected {{\"sequence\": ..., \"frames\": {{...}}}}; delete it (or rerun with --force)")
+        out[str(data.get("sequence", p.name[:-len(".bad_frames.json")]))] = len(data["frames"])
+    return out
+
+
 def read_failures(run_dir: Path) -> dict[str, str]:
     out = {}
     for p in sorted(Path(run_dir).glob("*.failed.json")):

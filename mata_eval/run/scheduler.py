@@ -292,6 +292,16 @@ def frames_and_fps(sequence: Sequence) -> tuple[int, float]:
     return n, fps
 
 
+def start_box(sequence: Sequence) -> Box:
+    """The box the tracker starts from (:attr:`Sequence.init_box`), checked: an absent or empty
+    frame-0 box is an error naming the sequence, not the tracker's complaint about a box."""
+    box = sequence.init_box
+    if not box.is_valid:
+        raise ValueError(f"sequence {sequence.name!r}: no target box in frame 0 to start the tracker from "
+                         f"(its first ground-truth line is absent, NaN or of zero size: {box.as_array().tolist()})")
+    return box
+
+
 def run_sequence(
     sequence: Sequence,
     tracker: Any,
@@ -363,7 +373,7 @@ def sequence_steps(
     tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)
     trace: list[TraceEvent] = []
     t_end = (n - 1) / fps
-    init_box = sequence.init_box
+    init_box = start_box(sequence)
 
     # The initial box is held (visible at t = 0) until the first output.
     boards["tracker"].post(TrackerOutput(init_box, math.nan), 0.0, 0, 0.0)

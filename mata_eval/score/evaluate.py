@@ -282,6 +282,7 @@ def evaluate_results(
         "config_hash": manifest.get("config_hash"),
         "dataset": dataset.get("name") if isinstance(dataset, dict) else None,
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
+        "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
     }
     return RunScores(
         name=name or manifest.get("run") or d.name,

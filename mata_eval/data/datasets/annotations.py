@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import os
 import re
 from dataclasses import dataclass
@@ -296,6 +297,14 @@ def frame_paths(folder: Path, n: int, numbered: str, where: Path, hint: str = ""
     if names:
         return FramePaths(lambda: [os.path.join(root, x) for x in names], n)
     return FramePaths(lambda: [os.path.join(root, numbered.format(k)) for k in range(1, n + 1)], n)
+
+
+def check_fps(plugin: str, fps: float | None) -> None:
+    """A dataset's ``fps`` parameter, checked when the experiment is loaded (a ValueError there
+    names the file, line and key): a positive finite number, or None where the plugin reads it
+    from the data."""
+    if fps is not None and not 0 < fps < math.inf:
+        raise ValueError(f"{plugin}: fps: expected a positive number, got {fps!r}")
 
 
 def select(names: list[str], wanted: list[str] | None, where: str) -> list[str]:

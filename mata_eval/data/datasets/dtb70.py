@@ -16,8 +16,8 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import (DatasetError, annotation_files, frame_paths, read_attribute_flags, read_boxes,
-                          select)
+from .annotations import (DatasetError, annotation_files, check_fps, frame_paths, read_attribute_flags,
+                          read_boxes, select)
 
 #: Flag order of the kit's att files (ATTRIBUTE_ORDER): scale variation, aspect ratio variation,
 #: occlusion, deformation, fast camera motion, in-plane rotation, out-of-plane rotation,
@@ -40,6 +40,9 @@ class DTB70:
         attributes: str | None = param(
             None, "folder of <seq>.txt attribute flags (default: <annotations>/att, <root>/anno/att or <root>/att)")
         fps: float = param(30.0, "camera frame rate (frames per second)")
+
+        def __post_init__(self) -> None:
+            check_fps("dtb70", self.fps)
 
     def __init__(self, params: Params):
         self.params = params

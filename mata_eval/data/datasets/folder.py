@@ -16,7 +16,7 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import DatasetError, MissingFrames, list_images, read_boxes, select
+from .annotations import DatasetError, MissingFrames, check_fps, list_images, read_boxes, select
 
 
 class FolderDataset:
@@ -34,6 +34,9 @@ class FolderDataset:
         frames: list[str] = param(["img", "imgs", "color", "."],
                                   "frame sub-folders tried in each sequence folder, in order ('.' = the folder itself)")
         fps: float = param(30.0, "camera frame rate (frames per second)")
+
+        def __post_init__(self) -> None:
+            check_fps("folder", self.fps)
 
     def __init__(self, params: Params):
         self.params = params

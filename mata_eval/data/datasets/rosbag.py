@@ -28,7 +28,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FrameReadError, Sequence
 from ...core.types import Box
-from .annotations import DatasetError
+from .annotations import DatasetError, check_fps
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _BAYER = {"bayer_rggb8": cv2.COLOR_BayerBG2BGR, "bayer_bggr8": cv2.COLOR_BayerRG2BGR,
@@ -167,8 +167,7 @@ class RosbagDataset:
                 raise ValueError("rosbag: give init_box: [x, y, w, h] (the target in frame 0) or a gt_topic")
             if self.init_box is not None and (len(self.init_box) != 4 or not Box.from_array(self.init_box).is_valid):
                 raise ValueError(f"rosbag: init_box: expected [x, y, w, h] with w, h > 0, got {self.init_box!r}")
-            if self.fps is not None and not self.fps > 0:
-                raise ValueError(f"rosbag: fps: expected a positive number, got {self.fps!r}")
+            check_fps("rosbag", self.fps)
 
     def __init__(self, params: Params):
         self.params = params

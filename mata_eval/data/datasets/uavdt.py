@@ -17,7 +17,7 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import DatasetError, frame_paths, read_attribute_flags, read_boxes, select
+from .annotations import DatasetError, check_fps, frame_paths, read_attribute_flags, read_boxes, select
 
 #: Flag order of ``att/<seq>_att.txt``: background clutter, camera motion, object motion, small
 #: object, illumination variations, object blur, scale variations, long-term tracking, large occlusion.
@@ -41,6 +41,9 @@ class UAVDT:
             None, "folder with <seq>_gt.txt and att/<seq>_att.txt (default: <root>/anno)")
         frames: str | None = param(None, "folder with one <seq>/ folder of frames (default: <root>/UAV-benchmark-S)")
         fps: float = param(30.0, "camera frame rate (frames per second)")
+
+        def __post_init__(self) -> None:
+            check_fps("uavdt", self.fps)
 
     def __init__(self, params: Params):
         self.params = params

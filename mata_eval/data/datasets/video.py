@@ -17,7 +17,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FrameReadError, Sequence
 from ...core.types import Box
-from .annotations import DatasetError, read_boxes
+from .annotations import DatasetError, check_fps, read_boxes
 
 
 class VideoFrames:
@@ -76,8 +76,7 @@ class VideoDataset:
                 raise ValueError("video: give init_box: [x, y, w, h] (the target in frame 0) or a groundtruth file")
             if self.init_box is not None and (len(self.init_box) != 4 or not Box.from_array(self.init_box).is_valid):
                 raise ValueError(f"video: init_box: expected [x, y, w, h] with w, h > 0, got {self.init_box!r}")
-            if self.fps is not None and not self.fps > 0:
-                raise ValueError(f"video: fps: expected a positive number, got {self.fps!r}")
+            check_fps("video", self.fps)
             if self.frames is not None and self.frames < 1:
                 raise ValueError(f"video: frames: expected a positive number of frames, got {self.frames!r}")
 

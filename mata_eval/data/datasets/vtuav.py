@@ -20,7 +20,7 @@ import numpy as np
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import AnnotationError, DatasetError, MissingFrames, list_images, read_boxes, select
+from .annotations import AnnotationError, DatasetError, MissingFrames, check_fps, list_images, read_boxes, select
 
 
 def expand_sparse(rows: np.ndarray, n_frames: int, step: int) -> tuple[np.ndarray, np.ndarray]:
@@ -46,6 +46,9 @@ class VTUAV:
         split: str = param("test_ST", "folder of the split under root (test_ST short-term, test_LT long-term)")
         annotation_step: int = param(10, "frames between two annotated frames (VTUAV: 10)")
         fps: float = param(30.0, "camera frame rate (frames per second)")
+
+        def __post_init__(self) -> None:
+            check_fps("vtuav", self.fps)
 
     def __init__(self, params: Params):
         if params.annotation_step < 1:
