@@ -183,3 +183,17 @@ def test_seed_must_be_integer(tmp_path):
 def test_unknown_metric_profile(tmp_path):
     msg = error(tmp_path, "dataset: toy\ntracker: a\nmetrics: {profile: vot2099}\n")
     assert "exp.yaml:3" in msg and "unknown metric profile 'vot2099'" in msg and "pysot-toolkit" in msg
+
+
+def test_a_misspelt_plugin_axis_suggests_the_plugin_key(tmp_path):
+    """``trackr:`` as a matrix axis reads its labels' values as top-level overrides, so its
+    ``name`` key is refused; the error suggests the axis ``tracker`` (QA pass: no hint)."""
+    msg = error(tmp_path, """\
+        dataset: toy
+        tracker: a
+        matrix:
+          trackr:
+            b: {name: b}
+        """)
+    assert "exp.yaml:5" in msg and "cannot override 'name' in a matrix" in msg
+    assert "did you mean the axis 'tracker'?" in msg

@@ -236,3 +236,11 @@ def test_a_frame_rate_that_is_not_a_positive_number_is_refused_when_the_experime
                     "tracker: {name: kcf}\nprotocol: {name: ltp}\n")
     with pytest.raises(ConfigError, match=rf"exp.yaml:2: dataset: {plugin}: fps: expected a positive number"):
         load_experiment(path)
+
+
+def test_a_missing_uav123_root_says_so(tmp_path):
+    """Not "no frame-range table ... Looked for: 15 paths", which sends a user looking for a
+    file when the folder itself is missing (QA pass)."""
+    for cls in (UAV123, UAV123_10fps, UAV20L):
+        with pytest.raises(DatasetError, match=rf"{cls.name} dataset root not found: {tmp_path / 'nowhere'}"):
+            make(cls, root=str(tmp_path / "nowhere")).sequences()

@@ -171,6 +171,12 @@ def test_unknown_layout_and_empty_folder(tmp_path):
         evaluate.detect_layout(tmp_path)
     with pytest.raises(ValueError, match="unknown results layout 'vot'"):
         evaluate.read_results(tmp_path, "vot")
+    # pysot-toolkit's results/<dataset>/<tracker>/<seq>.txt, given the dataset folder (QA pass)
+    for tracker in ("SiamAPN", "SiamRPN"):
+        (tmp_path / tracker).mkdir()
+        (tmp_path / tracker / "car1.txt").write_text("1,2,3,4\n")
+    with pytest.raises(FileNotFoundError, match=r"sub-folders SiamAPN, SiamRPN hold result files: pass them"):
+        evaluate.detect_layout(tmp_path)
 
 
 def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):

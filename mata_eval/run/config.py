@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import dataclasses
+import difflib
 import hashlib
 import itertools
 import json
@@ -349,7 +350,10 @@ def _expand(doc: dict, base: dict, origin: dict, locate: _Locator):
                 src = {k: kp + (k,) for k in value}
             for key, val in overrides.items():
                 if key not in TOP_LEVEL - NOT_OVERRIDABLE:
-                    raise ConfigError(locate(src[key]), src[key], f"cannot override {key!r} in a matrix")
+                    close = difflib.get_close_matches(str(axis), PLUGIN_KEYS, n=1)
+                    hint = (f" (an axis named after a plugin key takes that plugin's blocks: did you mean "
+                            f"the axis {close[0]!r}?)" if close else "")
+                    raise ConfigError(locate(src[key]), src[key], f"cannot override {key!r} in a matrix{hint}")
                 _apply(config, cfg_origin, key, val, src[key])
         yield [label for _, label, _ in combo], config, cfg_origin
 

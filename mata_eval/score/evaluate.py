@@ -124,8 +124,11 @@ def detect_layout(results_dir: Path) -> str:
         return "got10k"
     txts = sorted(p for p in d.glob("*.txt") if not p.name.endswith("_time.txt"))
     if not txts:
+        nested = sorted(p.name for p in d.iterdir() if p.is_dir() and any(p.glob("*.txt")))
+        hint = (f"; its sub-folders {', '.join(nested[:3])}{' ...' if len(nested) > 3 else ''} hold result "
+                f"files: pass them (e.g. {d}/*) to score each as a row" if nested else "")
         raise FileNotFoundError(
-            f"{d}: no results found (expected <seq>.txt files, or <seq>/<seq>_001.txt for got10k)")
+            f"{d}: no results found (expected <seq>.txt files, or <seq>/<seq>_001.txt for got10k){hint}")
     first = next((line for line in txts[0].read_text().splitlines() if line.strip()), "")
     return "pytracking" if "\t" in first else "pysot"
 
