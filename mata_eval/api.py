@@ -12,6 +12,10 @@ Both return :class:`mata_eval.score.evaluate.RunScores`, a frozen dataclass: ``n
 :class:`~mata_eval.score.metrics.SequenceScores`), ``summary.attributes`` and
 ``summary.groups`` (per attribute and challenge group), ``failures`` (sequence -> reason),
 ``missing`` (sequences without results) and ``frequencies`` (block rates).
+
+In a script, call ``run`` under ``if __name__ == "__main__":``: the synthetic suite is rendered in
+spawned worker processes, which import the script, and without the guard each would start the
+experiment again.
 """
 
 from __future__ import annotations

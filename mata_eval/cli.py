@@ -347,6 +347,9 @@ def cmd_paper(args: argparse.Namespace) -> int:
                 raise ValueError("--paper auto needs --experiment files; name the table for run folders")
             plan.append((args.paper, list(args.run_dirs)))
         if not plan and generic:
+            if args.out:   # the paper's HTML summary is for its tables: say so, not nothing
+                print(f"no summary.html: no experiment here is one of the paper's tables "
+                      f"({', '.join(PAPER_TABLES)}; name one with --paper KIND); the run tables follow")
             return _report_runs(generic, args)
         if not plan:
             raise ValueError("no runs: give run folders or --experiment files")
@@ -465,6 +468,10 @@ def cmd_timeline(args: argparse.Namespace) -> int:
     if frames is None and n_frames > TIMELINE_WINDOW:
         frames = (0, TIMELINE_WINDOW)
         print(f"frames 0:{TIMELINE_WINDOW} of {n_frames} (--frames A:B for another window)")
+    elif frames is not None and frames[0] >= n_frames:   # an empty plot, not an answer
+        print(f"mata-eval timeline: --frames {frames[0]}:{frames[1]} starts after the trace of {args.seq}, "
+              f"which has frames 0 to {n_frames - 1}", file=sys.stderr)
+        return 2
     plot_timeline(traces, out, frames=frames, title=args.seq)
     print(out)
     return 0
@@ -485,6 +492,7 @@ def cmd_play(args: argparse.Namespace) -> int:
 def cmd_profile(args: argparse.Namespace) -> int:
     from .deploy.profile import profile_run, summary_table
     from .run.config import load_experiment
+    from .run.scheduler import BlockError
     from .run.timing_profile import write_profile
 
     exp = load_experiment(args.experiment)
@@ -508,6 +516,9 @@ def cmd_profile(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BlockError as exc:   # a block raised or returned what a run refuses: no profile
+        print(f"error: run {spec.name}: {exc}; no profile written", file=sys.stderr)
+        return 1
     path = write_profile(profile, args.out)
     print(f"machine: {profile.machine.get('cpu')}" + (f"; GPU {', '.join(profile.machine['gpu'])}" if profile.machine.get("gpu") else "")
           + (f"; power mode {profile.machine['power_mode']}" if profile.machine.get("power_mode") else ""))

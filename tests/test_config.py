@@ -197,3 +197,12 @@ def test_a_misspelt_plugin_axis_suggests_the_plugin_key(tmp_path):
         """)
     assert "exp.yaml:5" in msg and "cannot override 'name' in a matrix" in msg
     assert "did you mean the axis 'tracker'?" in msg
+
+
+def test_runs_of_the_built_in_plugins_record_no_plugin_versions():
+    """Third-party plugins' versions enter the configuration (and so the hash); mata-eval's own
+    plugins do not, so that no stored run of them changes its hash."""
+    from mata_eval.run.config import find_experiment
+
+    exp = load_experiment(find_experiment("quickstart"))
+    assert exp.runs and all("plugin_versions" not in r.resolved for r in exp.runs)

@@ -12,6 +12,7 @@ exactly, and a runtime whose events are always late (e.g. one waiting for the ne
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -256,6 +257,19 @@ def test_a_failing_block_stops_the_run_and_names_itself():
     with pytest.raises(BlockError, match=r"tracker failed at frame 1 .*RuntimeError: boom"):
         run_live(sequence(100, FPS), Broken([0.0]), EgoMotion(0.001), warmup=0)
     assert time.perf_counter() - t0 < 2.0  # it did not wait for the 20 s sequence
+
+
+@pytest.mark.parametrize("value, words", [(TrackerOutput(Box(1.0, 2.0, 3.0, 4.0), 7.5), "returned confidence 7.5"),
+                                          ((1.0, 2.0, 3.0, 4.0), "expected a TrackerOutput, got tuple")])
+def test_a_live_tracker_output_is_checked_as_the_scheduler_checks_it(value, words):
+    """QA pass: under ``live`` a confidence of 7.5 was scored as it came; the live runtime
+    now refuses what the scheduler refuses (``output_problem``), naming block and frame."""
+    class Bad(Tracker):
+        def track(self, image, prior=None):
+            return value
+
+    with pytest.raises(BlockError, match=rf"tracker failed at frame \d+ .*{re.escape(words)}"):
+        run_live(sequence(100, FPS), Bad([0.0]), EgoMotion(0.001), warmup=0)
 
 
 def test_ctrl_c_stops_a_live_run_promptly(tmp_path):

@@ -92,6 +92,9 @@ def test_eval_report_timeline_and_profile_work_on_a_live_run(live_run, dataset, 
     assert main(["report", str(run)]) == 0
     assert main(["timeline", str(run), "glide", "--out", str(tmp_path / "t.png")]) == 0
     assert (tmp_path / "t.png").stat().st_size > 0
+    capsys.readouterr()
+    assert main(["timeline", str(run), "glide", "--frames", "1000:1100", "--out", str(tmp_path / "e.png")]) == 2
+    assert "starts after the trace of glide" in capsys.readouterr().err and not (tmp_path / "e.png").exists()
     assert main(["profile", str(exp_file), "--frames", "5", "--warmup", "1",
                  "--out", str(tmp_path / "p.json")]) == 0
     assert set(json.loads((tmp_path / "p.json").read_text())["blocks"]) == {"tracker", "egomotion", "estimator"}

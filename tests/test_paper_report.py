@@ -193,6 +193,21 @@ def test_embedded_table_differences_and_frequencies(tmp_path):
     assert "|" not in tex.split(r"\midrule", 1)[1].split(r"\bottomrule")[0]
 
 
+def test_embedded_table_says_so_when_eop_equals_the_embedded_runs(tmp_path):
+    """QA pass: with no EOP difference the note read 'LTP / EOP = infx'."""
+    runs = []
+    for mata in (False, True):
+        tag = "mata" if mata else "base"
+        runs.append(make_run(tmp_path, f"emb-{tag}", config(mata=mata, protocol={"name": "vot_rt", "time_scale": 6}),
+                             {"s": 10}, every=3))
+        runs.append(make_run(tmp_path, f"eop-{tag}", config(mata=mata, protocol={"name": "eop", "tracker_hz": "profile"}),
+                             {"s": 10}, every=3))
+        runs.append(make_run(tmp_path, f"ltp-{tag}", config(mata=mata), {"s": 18}, every=1))
+    notes = build_table("embedded", load_runs(runs)).notes
+    assert "mean |Delta SR|: EOP 0.0, LTP 40.0 points (EOP equals the embedded runs)" in notes
+    assert not any("inf" in n for n in notes)
+
+
 def test_embedded_table_rejects_other_protocols(tmp_path):
     d = make_run(tmp_path, "dsp", config(protocol={"name": "dsp", "n": 3}), {"s": 3})
     with pytest.raises(PlacementError, match="paper_role is one of Embedded, EOP, LTP"):
@@ -264,6 +279,10 @@ def test_report_cli_experiment_files(tmp_path, capsys):
     rows = {line.split()[0]: line.split() for line in lines[2:4]}
     assert lines[0].split()[:3] == ["Run", "Seqs", "SR"] and rows["baseline"][2] == "20.0" and rows["mata"][2] == "30.0"
     assert any(line.startswith("- SR: success rate") for line in lines)
+    # with --out it says why there is no summary.html (QA pass: silent)
+    assert cli.main(["report", "--experiment", str(other), "--out", str(tmp_path / "rep")]) == 0
+    assert "no summary.html: no experiment here is one of the paper's tables" in capsys.readouterr().out
+    assert not (tmp_path / "rep" / "summary.html").exists()
 
 
 def test_per_sequence_comparison_cli(tmp_path, capsys):

@@ -46,6 +46,15 @@ TRACKER_MODULE = '''
         pass
 
 
+    class NoTrack:
+        @dataclass(frozen=True)
+        class Params:
+            pass
+
+        def initialize(self, image, box):
+            pass
+
+
     def not_a_class():
         pass
 '''
@@ -96,6 +105,7 @@ def test_a_class_by_path_is_validated_and_runs(workdir):
     ('"my_trackers.drift:Dirft"', "module 'my_trackers.drift'"),
     ('"my_trackers.drift:not_a_class"', "'not_a_class' is a function, not a class"),
     ('"my_trackers.drift:NoParams"', "class NoParams has no Params dataclass"),
+    ('"my_trackers.drift:NoTrack"', "class NoTrack has no track method (a tracker plugin needs initialize, track"),
     ('"my_trackers/drift.py:Drift"', "is not a class path; expected 'package.module:Class', a tracker class"),
 ])
 def test_a_bad_class_path_says_where_and_what_was_expected(workdir, name, message):

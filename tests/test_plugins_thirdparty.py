@@ -38,6 +38,30 @@ def site(tmp_path_factory) -> Path:
     (broken / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-plugin\nVersion: 0.1\n")
     (broken / "entry_points.txt").write_text("[mata_eval]\nbroken = broken_plugin_module\n")
     (target / "broken_plugin_module.py").write_text("import not_a_real_dependency_xyz\n")
+    half = target / "half_plugin-0.1.dist-info"   # classes that are not whole plugins
+    half.mkdir()
+    (half / "METADATA").write_text("Metadata-Version: 2.1\nName: half-plugin\nVersion: 0.1\n")
+    (half / "entry_points.txt").write_text("[mata_eval]\nhalf = half_plugin_module\n")
+    (target / "half_plugin_module.py").write_text(textwrap.dedent("""\
+        from dataclasses import dataclass
+        from mata_eval.hooks import hookimpl
+
+        class NoParams:
+            name = "noparams"
+            def initialize(self, image, box): pass
+            def track(self, image, prior=None): pass
+
+        class NoTrack:
+            name = "notrack"
+            @dataclass(frozen=True)
+            class Params:
+                pass
+            def initialize(self, image, box): pass
+
+        @hookimpl
+        def mata_eval_trackers():
+            return [NoParams, NoTrack]
+        """))
     return target
 
 
@@ -48,6 +72,11 @@ def test_list_shows_third_party_tracker_and_the_broken_plugin(site):
     assert "[mata-eval-template-tracker]" in line
     assert "Normalised cross-correlation against the first-frame template" in line
     assert "broken  [broken-plugin]  ModuleNotFoundError: No module named 'not_a_real_dependency_xyz'" in out.stdout
+    # QA pass: these were listed, then failed validate with an AttributeError from inside mata-eval
+    assert "tracker 'noparams'  [half-plugin]  not used: it has no Params dataclass" in out.stdout
+    assert ("tracker 'notrack'  [half-plugin]  not used: it has no track method (a tracker plugin needs "
+            "initialize, track" in out.stdout)
+    assert "noparams  [half-plugin]" not in out.stdout and "notrack  [half-plugin]" not in out.stdout
 
 
 def test_third_party_tracker_runs_from_yaml(site, tmp_path):
@@ -81,6 +110,12 @@ def test_third_party_tracker_runs_from_yaml(site, tmp_path):
     gt = np.loadtxt(seq / "groundtruth.txt", delimiter=",")
     assert pred.shape == (12, 4)
     np.testing.assert_allclose(pred, gt, atol=1.0)
+    # the plugin's distribution and version are part of the run's configuration (manifest and
+    # hash): results of an upgraded plugin are not mixed with these (QA pass)
+    import json
+
+    manifest = json.loads((tmp_path / "results" / "exp" / "manifest.json").read_text())
+    assert manifest["config"]["plugin_versions"] == {"mata-eval-template-tracker": "1.0.0"}
 
 
 def test_readme_example_is_the_tested_plugin():

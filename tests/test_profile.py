@@ -5,6 +5,7 @@ hand-computed timeline; warm-up calls are not timed; the machine is described.""
 from __future__ import annotations
 
 import csv
+import re
 import textwrap
 import time
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ from mata_eval.params import param
 from mata_eval.deploy.profile import back_and_forth, describe_machine, profile_run, time_blocks
 from mata_eval.core.registry import PluginEntry, Registry, load_registry
 from mata_eval.run.runner import run_experiment
+from mata_eval.run.scheduler import BlockError
 from mata_eval.core.sequence import Sequence
 from mata_eval.run.timing_profile import read_profile
 from mata_eval.types import Box, Estimate, Motion, TrackerOutput
@@ -137,6 +139,33 @@ def test_warmup_is_not_timed_and_every_block_is_fed():
     # The estimator gets one motion and one detection per call, at increasing camera times.
     assert [c[1:] for c in est.calls] == [(1, 1)] * 8
     np.testing.assert_allclose([c[0] for c in est.calls], np.arange(1, 9) / 10.0)
+
+
+class Misbehaving(CostTracker):
+    """Fails at its 3rd call: raises, or returns what a run would refuse."""
+
+    def __init__(self, clock, fault):
+        super().__init__(clock, [0.01] * 10)
+        self.fault = fault
+
+    def track(self, image, prior=None):
+        out = super().track(image, prior)
+        if len(self.seen) == 3:
+            if self.fault == "raise":
+                raise RuntimeError("exploded on purpose")
+            return TrackerOutput(out.box, 7.5)
+        return out
+
+
+@pytest.mark.parametrize("fault, words", [("raise", "RuntimeError: exploded on purpose"),
+                                          ("confidence", "returned confidence 7.5; expected a number in [0, 1]")])
+def test_a_block_that_fails_while_profiled_is_named_with_its_call(fault, words):
+    """QA pass: a raising tracker gave a raw traceback, and one returning confidence 7.5 got a
+    profile; both now stop with the block, the frame and the call, as a run would."""
+    seq = Frames(Frames.Params(n=4, fps=10.0)).sequences()[0]
+    clock = FakeClock()
+    with pytest.raises(BlockError, match=rf"tracker failed at frame 3 .*: call 3 of 8: {re.escape(words)}"):
+        time_blocks(seq, Misbehaving(clock, fault), frames=6, warmup=2, clock=clock)
 
 
 def test_sleeping_tracker_profile_is_near_its_sleep(tmp_path):

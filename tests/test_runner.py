@@ -118,7 +118,7 @@ def test_nan_from_tracker_fails_only_that_sequence(tmp_path):
     exp = _exp(tmp_path, "{name: shift, nan_after: 3}")
     outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
     assert outcomes["good"].status == "failed" and outcomes["nan"].status == "failed"
-    assert all("non-finite" in o.reason or "nan" in o.reason.lower() for o in outcomes.values()
+    assert all("not four finite numbers" in o.reason or "nan" in o.reason.lower() for o in outcomes.values()
                if o.sequence != "broken")
 
 

@@ -52,7 +52,8 @@ class Faulty:
     @dataclass(frozen=True)
     class Params:
         step: float = param(1.0, "px per call")
-        fault: str = param("none", "none | hang | exit | interrupt | confidence_nan | confidence_big")
+        fault: str = param("none", "none | hang | exit | interrupt | confidence_nan | confidence_big | "
+                                   "confidence_text | tuple_box | text_box")
 
     def __init__(self, params):
         self.params = params
@@ -72,7 +73,11 @@ class Faulty:
         elif fault == "interrupt":
             raise KeyboardInterrupt
         self.box = Box(self.box.x + self.params.step, self.box.y, self.box.w, self.box.h)
-        confidence = {"confidence_nan": float("nan"), "confidence_big": 7.5}.get(fault, 1.0)
+        confidence = {"confidence_nan": float("nan"), "confidence_big": 7.5, "confidence_text": "0.5"}.get(fault, 1.0)
+        if fault == "tuple_box":
+            return TrackerOutput(tuple(self.box.as_array()), 0.5)
+        if fault == "text_box":
+            return TrackerOutput(Box("154.9", self.box.y, self.box.w, self.box.h), 0.5)
         return TrackerOutput(self.box, confidence)
 
 
@@ -135,8 +140,14 @@ def test_a_call_that_never_returns_fails_its_sequence_and_the_run_goes_on(tmp_pa
     assert "timeout_s" in failure["reason"]
 
 
-@pytest.mark.parametrize("fault, words", [("exit", "SystemExit"), ("interrupt", "KeyboardInterrupt"),
-                                          ("confidence_nan", "confidence"), ("confidence_big", "confidence")])
+@pytest.mark.parametrize("fault, words", [
+    ("exit", "SystemExit"), ("interrupt", "KeyboardInterrupt"), ("confidence_nan", "confidence"),
+    ("confidence_big", "confidence"),
+    # QA pass: a string confidence passed; a tuple box died in an AttributeError naming no block
+    # or frame; a string coordinate was called "non-finite"
+    ("confidence_text", "returned confidence '0.5'; expected a number in [0, 1]"),
+    ("tuple_box", "tracker failed at frame 2 (t = 0.0667 s): returned a box of type tuple"),
+    ("text_box", "returned a box that is not four finite numbers")])
 def test_a_misbehaving_tracker_fails_only_its_sequence(tmp_path, registry, fault, words):
     exp = load_experiment(_write(tmp_path, f"{{name: faulty, fault: {fault}}}"), registry)
     outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, **QUIET)}

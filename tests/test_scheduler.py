@@ -299,7 +299,7 @@ def test_profile_like_latency_and_jitter_are_seeded():
 def test_tracker_failures_name_block_and_frame():
     with pytest.raises(BlockError, match=r"tracker failed at frame 3 .*ValueError: boom"):
         run_sequence(make_sequence(6), FrameTracker(fail_at=3), None, None, LTP(), np.random.default_rng(0))
-    with pytest.raises(BlockError, match=r"tracker failed at frame 2 .*non-finite"):
+    with pytest.raises(BlockError, match=r"tracker failed at frame 2 .*not four finite numbers"):
         run_sequence(make_sequence(6), FrameTracker(nan_at=2), None, None, LTP(), np.random.default_rng(0))
     # An unreadable frame is not the tracker's fault: the read error comes out as it is.
     with pytest.raises(FrameReadError, match="cannot read frame 4"):

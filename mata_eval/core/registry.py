@@ -84,10 +84,30 @@ def load_class(kind: str, path: str) -> PluginEntry:
                        f"{expected}")
     if not isinstance(cls, type):
         raise KeyError(f"{kind} {path!r}: {class_name!r} is a {type(cls).__name__}, not a class; {expected}")
-    if not dataclasses.is_dataclass(getattr(cls, "Params", None)):
-        raise KeyError(f"{kind} {path!r}: class {class_name} has no Params dataclass (an empty one will do: "
-                       "@dataclass(frozen=True) class Params: pass); see README 'Writing a plugin'")
+    if (problem := class_problem(kind, cls)) is not None:
+        raise KeyError(f"{kind} {path!r}: class {class_name} {problem}")
     return PluginEntry(kind, path, cls, module_name, describe_line(cls))
+
+
+#: the methods each kind of plugin is called through (mata_eval.core.interfaces)
+METHODS = {"dataset": ("sequences",), "tracker": ("initialize", "track"),
+           "egomotion": ("initialize", "estimate"), "estimator": ("initialize", "step")}
+
+
+def class_problem(kind: str, cls: object) -> str | None:
+    """What keeps ``cls`` from being a ``kind`` plugin, or None: a class with a ``Params``
+    dataclass and the methods the framework calls (checked when it is loaded, not on the first
+    frame of a run)."""
+    if not isinstance(cls, type):
+        return f"is a {type(cls).__name__}, not a class"
+    if not dataclasses.is_dataclass(getattr(cls, "Params", None)):
+        return ("has no Params dataclass (an empty one will do: @dataclass(frozen=True) class Params: "
+                "pass); see README 'Writing a plugin'")
+    missing = [m for m in METHODS.get(kind, ()) if not callable(getattr(cls, m, None))]
+    if missing:
+        return (f"has no {' or '.join(missing)} method (a {kind} plugin needs "
+                f"{', '.join(METHODS[kind])}: mata_eval.core.interfaces)")
+    return None
 
 
 def describe_line(cls: type) -> str:
@@ -126,8 +146,11 @@ def load_registry() -> Registry:
                 failures.append(LoadFailure(impl.plugin_name, package, f"{hook_name}() raised {exc!r}"))
                 continue
             for cls in classes:
-                entry = PluginEntry(kind, getattr(cls, "name", cls.__name__), cls, package, describe_line(cls))
-                failure = _add(plugins[kind], entry)
+                name = getattr(cls, "name", getattr(cls, "__name__", repr(cls)))
+                if (problem := class_problem(kind, cls)) is not None:
+                    failure: LoadFailure | None = LoadFailure(f"{kind} {name!r}", package, f"not used: it {problem}")
+                else:
+                    failure = _add(plugins[kind], PluginEntry(kind, name, cls, package, describe_line(cls)))
                 if failure:  # also said at once: `list` is not the only place a user looks
                     failures.append(failure)
                     warnings.warn(f"plugin {failure.entry_point} of {failure.package}: {failure.error}")

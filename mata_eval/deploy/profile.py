@@ -29,6 +29,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..run.scheduler import BlockError, output_problem
 from ..run.timing_profile import TimingProfile, profile_from_samples
 from ..core.types import Stamped
 
@@ -176,10 +177,16 @@ def time_blocks(sequence: Any, tracker: Any, egomotion: Any = None, estimator: A
     fps = float(sequence.fps)
     samples: dict[str, list[float]] = {}
 
-    def timed(name: str, i: int, fn: Callable, *args: Any) -> Any:
+    def timed(name: str, i: int, k: int, fn: Callable, *args: Any) -> Any:
+        """Call ``i`` of block ``name``, on frame ``k``: timed, and checked as a run checks it."""
         t0 = clock()
-        value = fn(*args)
+        try:
+            value = fn(*args)
+        except Exception as exc:   # which block, which call: not a traceback from inside it
+            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {type(exc).__name__}: {exc}") from exc
         dt = clock() - t0
+        if (problem := output_problem(name, value)) is not None:   # what a run would refuse
+            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {problem}")
         if i >= warmup:
             samples.setdefault(name, []).append(dt)
         if pace is not None:
@@ -189,17 +196,17 @@ def time_blocks(sequence: Any, tracker: Any, egomotion: Any = None, estimator: A
     outputs, motions = [], []
     tracker.initialize(images[0], sequence.init_box)
     for i, k in enumerate(order):
-        outputs.append(timed("tracker", i, tracker.track, images[k], None))
+        outputs.append(timed("tracker", i, k, tracker.track, images[k], None))
     if egomotion is not None:
         egomotion.initialize(images[0])
         for i, k in enumerate(order):
-            motions.append(timed("egomotion", i, egomotion.estimate, images[k]))
+            motions.append(timed("egomotion", i, k, egomotion.estimate, images[k]))
     if estimator is not None:
         estimator.initialize(sequence.init_box, 0.0)
         for i in range(total):
             t = (i + 1) / fps
             ms = (Stamped(motions[i], t, t),) if motions else ()
-            timed("estimator", i, estimator.step, t, ms, (Stamped(outputs[i], t, t),))
+            timed("estimator", i, i + 1, estimator.step, t, ms, (Stamped(outputs[i], t, t),))
     return {name: np.asarray(v) for name, v in samples.items()}
 
 

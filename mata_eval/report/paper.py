@@ -341,9 +341,9 @@ def embedded_table(runs: Sequence[PlacedRun]) -> Table:
             return sum(vals) / len(vals) if vals else float("nan")
         for k, m in ((0, "SR"), (1, "NT2F")):
             e, l_ = mean("EOP", k), mean("LTP", k)
-            ratio = l_ / e if e > 0 else float("inf")
-            notes.append(f"mean |Delta {m}|: EOP {100 * e:.1f}, LTP {100 * l_:.1f} points "
-                         f"(LTP / EOP = {ratio:.1f}x)")
+            ratio = (f"LTP / EOP = {l_ / e:.1f}x" if e > 0 else     # not "infx" when EOP is exact
+                     "EOP equals the embedded runs" if e == 0 else "no finite difference")
+            notes.append(f"mean |Delta {m}|: EOP {100 * e:.1f}, LTP {100 * l_:.1f} points ({ratio})")
     return Table("embedded", CAPTIONS["embedded"], ["VOT", "MATA"],
                       [("Embedded", 3), ("EOP", 3), ("LTP", 3)],
                       ["SR", "NT2F", "Freq.", "|dSR|", "|dNT2F|", "Freq.", "|dSR|", "|dNT2F|", "Freq."], rows, blocks,

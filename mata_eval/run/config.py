@@ -38,11 +38,13 @@ import contextlib
 import copy
 import dataclasses
 import difflib
+import functools
 import hashlib
+import importlib.metadata as md
 import itertools
 import json
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, Mapping
 
 import yaml
 
@@ -403,6 +405,11 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
         blocks[key] = block
         resolved[key] = None if block is None else {"name": block.name, **dataclasses.asdict(block.params)}
 
+    versions = {dist: v for block in blocks.values() if block is not None
+                for dist, v in plugin_distribution(block.cls).items()}
+    if versions:  # only then: the hash of every run of the built-in plugins stays the same
+        resolved["plugin_versions"] = versions   # an upgraded plugin's results are not mixed in
+
     occlusion = None
     if cfg["occlusion"] is not None:
         from ..data.occlusion import OcclusionParams
@@ -448,6 +455,21 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
     return RunSpec(run_name, seed, blocks["dataset"], blocks["tracker"], blocks["egomotion"],
                    blocks["estimator"], blocks["protocol"], occlusion, feedback, profile, resolved,
                    None if timeout is None else float(timeout), on_bad)
+
+
+def plugin_distribution(cls: type) -> dict[str, str]:
+    """{distribution: version} of the installed package a third-party plugin class comes from
+    (recorded in the run's configuration, so in its hash and manifest); empty for mata-eval's
+    own plugins and for a class loaded by path from a folder that is not an installed package."""
+    top = cls.__module__.split(".")[0]
+    if top in ("mata_eval", "mata_eval_plugins"):
+        return {}
+    return {d: md.version(d) for d in _distributions().get(top, ())}
+
+
+@functools.lru_cache(maxsize=1)
+def _distributions() -> Mapping[str, list[str]]:
+    return md.packages_distributions()
 
 
 def _plugin_block(kind: str, value: Any, where, registry: Registry) -> PluginBlock | None:

@@ -37,9 +37,10 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .scheduler import BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps, start_box
+from .scheduler import (BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps, output_problem,
+                        start_box)
 from ..core.sequence import Sequence
-from ..core.types import Box, Estimate, Motion, Stamped, TrackerOutput
+from ..core.types import Box, Stamped
 
 
 @dataclass(frozen=True, eq=False)
@@ -287,13 +288,12 @@ def _initializer(block: str, obj: Any, image: np.ndarray, box: Box, t: float) ->
 
 
 def _check(block: str, value: Any, first: bool) -> None:
-    want = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Estimate}[block]
+    """The scheduler's check of a block's output (:func:`output_problem`); an initialisation
+    returns nothing to check, except the estimator's first estimate."""
     if first and block != "estimator":
         return
-    if not isinstance(value, want):
-        raise TypeError(f"expected a {want.__name__}, got {type(value).__name__}")
-    if block != "egomotion" and not all(math.isfinite(v) for v in value.box.as_array()):
-        raise ValueError(f"returned a non-finite box {value.box}")
+    if (problem := output_problem(block, value)) is not None:
+        raise ValueError(problem)
 
 
 def assemble(camera_t: list[float], calls: Mapping[str, list[Call]], fps: float, init_box: Box,

@@ -117,7 +117,7 @@ def plan(exp: Experiment, only: Iterable[str] | None = None) -> Plan:
     known = {r.name for r in exp.runs}
     unknown = [n for n in only if n not in known]
     if unknown:
-        return Plan((), (), (f"--runs: unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
+        return Plan((), (), (f"unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
     specs = [r for r in exp.runs if not only or r.name in only]
     problems = find_problems(specs)
     by_name = {r.name: r for r in specs}

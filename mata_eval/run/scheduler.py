@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import io
 import math
+import numbers
 import signal
 import threading
 import time
@@ -609,28 +610,41 @@ def _call(alarm: _CallAlarm, block: str, k: int, t: float, fn: Callable, *args: 
         raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}") from exc
 
 
-def _check_output(value: Any, k: int, t: float) -> None:
-    if not isinstance(value, TrackerOutput):
-        raise BlockError("tracker", k, t, f"expected a TrackerOutput, got {type(value).__name__}")
+def output_problem(block: str, value: Any) -> str | None:
+    """What is wrong with a block's output, or None: the type the block promises, for the
+    tracker and the estimator a :class:`Box` of four finite numbers, for the tracker a
+    confidence that is a number in [0, 1]. The scheduler, the live runtime and ``mata-eval
+    profile`` check every call with it."""
+    want = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Estimate}[block]
+    if not isinstance(value, want):
+        return f"expected a {want.__name__}, got {type(value).__name__}"
+    if block == "egomotion":
+        return None
+    if not isinstance(value.box, Box):
+        return f"returned a box of type {type(value.box).__name__}; expected a mata_eval.types.Box"
     if not _finite(value.box):
-        raise BlockError("tracker", k, t, f"returned a non-finite box {value.box}")
-    try:
-        confidence = float(value.confidence)
-    except (TypeError, ValueError):
-        confidence = math.nan
-    if not 0.0 <= confidence <= 1.0:
-        raise BlockError("tracker", k, t, f"returned confidence {value.confidence!r}; expected a number in [0, 1]")
+        return f"returned a box that is not four finite numbers: {value.box}"
+    if block == "tracker":
+        c = value.confidence
+        if not (_is_number(c) and 0.0 <= float(c) <= 1.0):
+            return f"returned confidence {c!r}; expected a number in [0, 1]"
+    return None
+
+
+def _check_output(value: Any, k: int, t: float) -> None:
+    if (problem := output_problem("tracker", value)) is not None:
+        raise BlockError("tracker", k, t, problem)
 
 
 def _check_estimate(value: Any, k: int, t: float) -> None:
-    if not isinstance(value, Estimate):
-        raise BlockError("estimator", k, t, f"expected an Estimate, got {type(value).__name__}")
-    if not _finite(value.box):
-        raise BlockError("estimator", k, t, f"returned a non-finite box {value.box}")
+    if (problem := output_problem("estimator", value)) is not None:
+        raise BlockError("estimator", k, t, problem)
+
+
+def _is_number(v: Any) -> bool:
+    """A real number (numpy's included), not a string or a bool."""
+    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
 
 
 def _finite(box: Box) -> bool:
-    try:
-        return all(math.isfinite(v) for v in (box.x, box.y, box.w, box.h))
-    except TypeError:
-        return False
+    return all(_is_number(v) and math.isfinite(v) for v in (box.x, box.y, box.w, box.h))
