@@ -187,19 +187,31 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(build_params(cls.Params, values)).sequences())
 
 
-def _run_dataset(results_dir: str, name: str) -> dict[str, Any]:
-    """The dataset parameters a mata-eval run folder was made with (its manifest), when its
-    dataset is plugin ``name``; empty otherwise. ``eval RUN --dataset synthetic`` without
-    ``--set`` then scores against the run's own suite instead of generating the default one."""
+def _run_config(results_dir: str, dataset: str) -> dict[str, Any]:
+    """The resolved configuration in a mata-eval run folder's manifest when its dataset is the
+    plugin ``dataset``; empty otherwise (another layout, another dataset, no manifest)."""
     from .run.results import read_manifest
 
     try:
-        dataset = ((read_manifest(Path(results_dir)) or {}).get("config") or {}).get("dataset")
+        config = (read_manifest(Path(results_dir)) or {}).get("config") or {}
     except (OSError, ValueError):
         return {}
-    if not isinstance(dataset, dict) or dataset.get("name") != name:
-        return {}
-    return {k: v for k, v in dataset.items() if k != "name" and v is not None}
+    ds = config.get("dataset")
+    return config if isinstance(ds, dict) and ds.get("name") == dataset else {}
+
+
+def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -> list:
+    """``seqs`` with the run's occlusion augmentation (its manifest's ``occlusion`` and seed),
+    which adds the AOC attribute and the occluded frames: scored without it, a run made with
+    ``occlusion: {}`` lost its occlusion group. Reads each sequence's frame 0 (its size)."""
+    if not config.get("occlusion"):
+        return seqs
+    from .core.params import build_params
+    from .data.occlusion import OcclusionParams, augment_sequence
+
+    params, seed = build_params(OcclusionParams, config["occlusion"]), int(config.get("seed", 0))
+    print(f"{results_dir}: with the run's occlusion augmentation (seed {seed})")
+    return [augment_sequence(s, params, seed) for s in seqs]
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -220,14 +232,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return 2
     all_scores = []
     try:
-        if args.root is None and not sets and (run_sets := _run_dataset(args.results_dirs[0], args.dataset)):
-            sets = run_sets   # a run folder of this dataset: the dataset as that run loaded it
+        first = _run_config(args.results_dirs[0], args.dataset)
+        if args.root is None and not sets and first:
+            # a run folder of this dataset: the dataset as that run loaded it, not the default
+            # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count)
+            sets = {k: v for k, v in first["dataset"].items() if k != "name" and v is not None}
             print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
         seqs = load_dataset(args.dataset, args.root, sets)
         for results_dir in args.results_dirs:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
-                scores = evaluate_results(results_dir, seqs, args.profile, layout="mata")
+                run_seqs = _as_the_run_saw_them(seqs, results_dir, _run_config(results_dir, args.dataset))
+                scores = evaluate_results(results_dir, run_seqs, args.profile, layout="mata")
                 if not args.no_save:
                     try:
                         print(f"wrote {save_scores(results_dir, scores)}")

@@ -244,3 +244,5 @@ def test_a_missing_uav123_root_says_so(tmp_path):
     for cls in (UAV123, UAV123_10fps, UAV20L):
         with pytest.raises(DatasetError, match=rf"{cls.name} dataset root not found: {tmp_path / 'nowhere'}"):
             make(cls, root=str(tmp_path / "nowhere")).sequences()
+        with pytest.raises(DatasetError, match=rf"annotations: folder not found: {tmp_path / 'nope'}"):
+            make(cls, root=str(tmp_path), annotations=str(tmp_path / "nope")).sequences()

@@ -97,6 +97,18 @@ def test_challenge_table_like_paper_table_2(runs):
     assert "Occlusion (1) SR" in term and "Distractor (1) NT2F" in term
 
 
+
+def test_the_challenge_columns_keep_the_papers_order_after_scores_json(tmp_path):
+    """QA pass: scores read back from scores.json (keys sorted) put Distractor first."""
+    r = run_scores("all", [20, 10, 5, 15], [{"FOC"}, {"SOB"}, {"FM"}, {"OV"}])
+    evaluate.save_scores(tmp_path, r)
+    back = evaluate.load_scores(tmp_path)
+    assert list(back.summary.groups) != list(r.summary.groups)   # the file's order differs
+    head = overview.render_table([back], "terminal", table="challenges").splitlines()[0]
+    order = [head.index(g) for g in ("Occlusion", "Distractor", "High dynamic", "Out of view")]
+    assert order == sorted(order), head
+
+
 def test_bad_format_is_rejected(runs):
     with pytest.raises(ValueError, match="unknown table format 'html'"):
         overview.render_table(runs, "html")

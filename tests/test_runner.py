@@ -254,3 +254,34 @@ def test_rewriting_a_sequence_makes_the_run_scores_stale(tmp_path):
     scores.write_text("{}")
     run_experiment(exp, sequences=["broken"], jobs=1, progress=False, log=lambda s: None)
     assert not scores.exists()  # a failed sequence is rewritten too
+
+
+def test_a_parallel_run_after_this_process_used_opencv_threads_does_not_hang(tmp_path):
+    """A process that has run a threaded OpenCV call (an API user's script, a test session) and
+    then runs with jobs=2: the forked workers inherited OpenCV's thread pool without its threads,
+    and their cv2.setNumThreads(1) waited for them forever (found as a hung test run). Run in a
+    child process so that a regression fails on its timeout instead of hanging the suite."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "parallel.py"
+    script.write_text(textwrap.dedent(f"""
+        import cv2, numpy as np
+        from mata_eval.run.config import load_experiment
+        from mata_eval.run.runner import run_experiment
+
+        if __name__ == "__main__":   # the synthetic suite is rendered by spawned processes
+            cv2.setNumThreads(2)
+            cv2.GaussianBlur(np.zeros((2160, 3840, 3), np.uint8), (15, 15), 3)   # starts the pool
+            exp = load_experiment({str(tmp_path / 'exp.yaml')!r})
+            outcomes = run_experiment(exp, jobs=2, progress=False, log=lambda s: None)
+            print(sorted(o.status for o in outcomes), cv2.getNumThreads())
+        """))
+    (tmp_path / "exp.yaml").write_text(
+        f"output: {tmp_path / 'out'}\n"
+        "dataset: {name: synthetic, n_sequences: 2, n_frames: 8, width: 160, height: 120}\n"
+        "tracker: {name: kcf}\n")
+    env = {**os.environ, "MATA_EVAL_CACHE": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[-2] == "['done', 'done'] 2"   # and the process's setting is back

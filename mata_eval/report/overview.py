@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..score.evaluate import RunScores
+from ..score.metrics import DEFAULT_GROUPS
 from .tables import FORMATS, Table, hz, pct, render
 
 TABLES = ("overall", "challenges")
@@ -63,12 +64,15 @@ def _blocks(runs: Sequence[RunScores]) -> list[str]:
 
 
 def _group_names(runs: Sequence[RunScores]) -> list[str]:
+    """The challenge groups, in the order of DEFAULT_GROUPS (the paper's Table 2), then any
+    other: the same whether the scores are fresh or read back from scores.json (keys sorted)."""
     names: list[str] = []
     for r in runs:
         for g in r.summary.groups:
             if g not in names:
                 names.append(g)
-    return names
+    rank = {g: i for i, g in enumerate(DEFAULT_GROUPS)}
+    return sorted(names, key=lambda g: (rank.get(g, len(rank)), names.index(g)))
 
 
 def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from ..score.evaluate import RunScores
+from ..score.metrics import DEFAULT_GROUPS
 from .html import html_summary
 from .tables import Table, mark, pct, render
 
@@ -36,7 +37,7 @@ PAPER_TABLES = ("protocols", "challenges", "ablation", "embedded")
 #: the column groups of Table 4, filled by the protocols whose ``paper_role`` they are
 EMBEDDED_ROLES = ("Embedded", "EOP", "LTP")
 
-CHALLENGE_ORDER = ("occlusion", "distractor", "high dynamic", "out of view")
+CHALLENGE_ORDER = tuple(DEFAULT_GROUPS)   # the paper's Table 2 order
 CAPTIONS = {
     "protocols": "SR and NT2F of each tracker with and without MATA under LTP and EOP (paper Table 1).",
     "challenges": "SR and NT2F per challenge (paper Table 2).",

@@ -8,6 +8,7 @@ with the reason."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import dataclasses
 import multiprocessing
@@ -16,7 +17,7 @@ import signal
 import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Callable, Protocol
+from typing import Callable, Iterator, Protocol
 
 from . import stop
 from .config import Experiment
@@ -79,6 +80,24 @@ def _die_with_parent(parent: int | None) -> None:
         os._exit(1)
 
 
+@contextlib.contextmanager
+def _opencv_threads_stopped() -> Iterator[None]:
+    """OpenCV's thread pool stopped in this process while worker processes are forked from it,
+    its thread count restored afterwards. A forked child inherits the pool without its threads,
+    and its first ``cv2.setNumThreads`` (:func:`one_thread_per_process`) then waits forever for
+    them: 10 of 10 children hung after the parent had run one threaded GaussianBlur (an API user's
+    process, or a test session, that used OpenCV before ``run(jobs=2)``). The driver only waits
+    on the workers meanwhile."""
+    import cv2
+
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 class LocalExecutor:
     """Tasks in ``jobs`` worker processes on this machine (in this process when ``jobs`` is 1)."""
 
@@ -118,7 +137,8 @@ class LocalExecutor:
         lost = []
         context = multiprocessing.get_context()
         parent = None if context.get_start_method() == "forkserver" else os.getpid()
-        with stop.deferred():
+        forking = context.get_start_method() == "fork"
+        with stop.deferred(), (_opencv_threads_stopped() if forking else contextlib.nullcontext()):
             pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
                                        initargs=(parent,))
             try:

@@ -166,9 +166,17 @@ def run_live(
         # The clock starts once the workers run (they call now() only on a published frame), so
         # frame 0 is not late by the threads' start-up.
         t0 = time.perf_counter()
+        camera_error: list[BaseException] = []
+        camera = threading.Thread(target=_camera_thread, name="live-camera", daemon=True,
+                                  args=(bus, prefetcher, n, fps, t0, camera_error))
+        camera.start()
         try:
-            _camera(bus, prefetcher, n, fps, t0)
-        except BaseException:  # Ctrl-C, a frame that cannot be read
+            # The camera has its own thread, so that Ctrl-C arrives here, where this thread holds
+            # no lock: a KeyboardInterrupt raised just after a `with bus.cond:` took the lock left
+            # it held, and a worker waiting for it kept the process alive (a hung test, once).
+            while camera.is_alive():
+                camera.join(0.05)
+        except BaseException:  # Ctrl-C
             with bus.cond:
                 bus.stopped = True
             raise
@@ -179,6 +187,8 @@ def run_live(
             bus.ending.set()
             for th in threads:
                 th.join()
+        if camera_error:   # a frame that cannot be read
+            raise camera_error[0]
     finally:
         prefetcher.close()
         sys.setswitchinterval(switch)
@@ -187,8 +197,20 @@ def run_live(
     return assemble(bus.camera_t, bus.calls, fps, init_box, estimator is not None)
 
 
+def _camera_thread(bus: _Bus, prefetcher: _Prefetcher, n: int, fps: float, t0: float,
+                   error: list[BaseException]) -> None:
+    """:func:`_camera` in its thread; what stops it (an unreadable frame) stops the run and goes
+    into ``error`` for the caller to raise."""
+    try:
+        _camera(bus, prefetcher, n, fps, t0)
+    except BaseException as exc:
+        error.append(exc)
+        with bus.cond:
+            bus.stopped = True
+
+
 def _camera(bus: _Bus, prefetcher: _Prefetcher, n: int, fps: float, t0: float) -> None:
-    """Publish frame k at ``t0 + k / fps`` (this thread; Ctrl-C arrives here)."""
+    """Publish frame k at ``t0 + k / fps`` (in the camera thread, :func:`_camera_thread`)."""
     for k in range(n):
         image = prefetcher.take(k)
         while (wait := t0 + k / fps - time.perf_counter()) > 0:

@@ -227,6 +227,8 @@ def score_results(
         if res is None:
             missing.append(seq.name)
             continue
+        if len(res.boxes) == 0 and len(seq):   # every profile: the got10k one truncated it to nothing
+            raise ValueError(f"{res.source}: empty prediction file; sequence {seq.name!r} has {len(seq)} frames")
         scored = res.scored
         if scored is not None and len(scored) != len(seq):
             raise ValueError(f"{res.source}: frames.csv has {len(scored)} rows, sequence {seq.name!r} has {len(seq)} frames")
@@ -234,7 +236,7 @@ def score_results(
             per_seq[seq.name] = metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile,
                                                        scored=scored, annotated=seq.annotated)
         except ValueError as exc:
-            raise ValueError(f"{res.source}: {exc}") from None
+            raise ValueError(f"{res.source}: {exc}{_blank_lines_note(res.source)}") from None
         attrs[seq.name] = tuple(sorted(seq.attributes))
         occ = occluded_frame_scores(res, seq, profile)
         if occ is not None:
@@ -245,6 +247,20 @@ def score_results(
     if occluded:
         summary = dataclasses.replace(summary, occluded_frames=metrics.summarize(occluded.values()))
     return per_seq, attrs, summary, missing, metrics.combine_frequencies(freqs)
+
+
+def _blank_lines_note(source: str) -> str:
+    """Where a prediction file has blank lines (skipped when it is read, as np.loadtxt skips
+    them in the got10k and pytracking toolkits), for an error about its row count."""
+    try:
+        lines = Path(source).read_text().rstrip().splitlines()
+    except (OSError, UnicodeDecodeError):
+        return ""
+    blank = [i for i, line in enumerate(lines, start=1) if not line.strip()]
+    if not blank:
+        return ""
+    where = ", ".join(map(str, blank[:5])) + (" ..." if len(blank) > 5 else "")
+    return f"; line{'s' if len(blank) > 1 else ''} {where} {'are' if len(blank) > 1 else 'is'} blank (blank lines are skipped)"
 
 
 def occluded_frame_scores(res: SequenceResult, seq: Sequence, profile: str) -> SequenceScores | None:

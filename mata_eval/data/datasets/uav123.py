@@ -84,6 +84,8 @@ class _UAV123Layout:
         tried = [base / rel for base in dict.fromkeys([self.root, self.anno_dir, self.anno_dir.parent])
                  for rel in FRAME_RANGE_CANDIDATES]
         found = [p for p in dict.fromkeys(tried) if p.is_file()]
+        if not found and self.params.annotations and not self.anno_dir.is_dir():
+            raise DatasetError(f"annotations: folder not found: {self.anno_dir}")
         if not found and not self.root.is_dir() and not self.params.annotations:
             raise DatasetError(f"{self.name} dataset root not found: {self.root}; expected the official layout "
                                f"<root>/data_seq/{self.frames_subset}/ and <root>/anno/{self.subset}/ (set root: <folder>)")
