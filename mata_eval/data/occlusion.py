@@ -442,6 +442,19 @@ def write_occlusion_metadata(folder: Path, seq: Sequence) -> None:
     (folder / f"{seq.name}.events.json").write_text(json.dumps(events))
 
 
+def read_occlusion_metadata(folder: Path, name: str) -> tuple[np.ndarray, bool] | None:
+    """What :func:`write_occlusion_metadata` wrote for sequence ``name`` in ``folder``: the
+    per-frame covered fraction and whether an event covered the target (the AOC attribute,
+    from the events' exact peaks), or None when nothing was written for it."""
+    path = folder / f"{name}.txt"
+    if not path.is_file():
+        return None
+    frac = np.array([float(v) for v in path.read_text().split()])
+    events = folder / f"{name}.events.json"
+    peaks = [e.get("peak_covered", 0.0) for e in json.loads(events.read_text())] if events.is_file() else frac
+    return frac, bool(np.nansum(np.asarray(peaks, float) > 0))
+
+
 def load_occlusion(root: str | Path, seq: str) -> np.ndarray:
     """Per-frame covered fraction written by :func:`write_augmented` (NaN where no box)."""
     path = Path(root) / "anno" / "UAV123" / "occlusion" / f"{seq}.txt"

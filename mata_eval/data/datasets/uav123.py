@@ -19,6 +19,7 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FramePaths, Sequence
+from ..occlusion import ATTRIBUTE as OCCLUSION_ATTRIBUTE, read_occlusion_metadata
 from .annotations import (DatasetError, FrameRange, frame_paths, read_attribute_flags, read_boxes,
                           read_frame_ranges, select)
 
@@ -152,6 +153,10 @@ class _UAV123Layout:
             meta = {"video": name, "start_frame": 1, "end_frame": len(gt)}
         att_dir = self.anno_dir / "att"
         attrs = read_attribute_flags(att_dir / f"{name}.txt", ATTRIBUTES) if att_dir.is_dir() else frozenset()
+        occluded = read_occlusion_metadata(self.anno_dir / "occlusion", name)
+        if occluded is not None:   # a copy written by `mata-eval augment`: its occluders, as a run saw them
+            meta["occlusion"] = occluded[0]
+            attrs = attrs | ({OCCLUSION_ATTRIBUTE} if occluded[1] else frozenset())
         return Sequence(name=name, groundtruth=gt, fps=self.fps, attributes=attrs,
                         frame_paths=frames, meta=meta)
 
