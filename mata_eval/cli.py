@@ -274,8 +274,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def _print_incomplete(runs: Sequence) -> None:
     """After a table: the sequences each scored run has no results for (an interrupted run, a
-    results folder short of the dataset; its row averages only the others), and the frames it
-    skipped as unreadable (``on_bad_frame: skip``: not scored)."""
+    results folder short of the dataset; its row averages only the others), the frames it
+    skipped as unreadable (``on_bad_frame: skip``: not scored), and rows scored under different
+    metric profiles (their numbers do not compare)."""
+    profiles: dict[str, list[str]] = {}
+    for scores in runs:
+        profiles.setdefault(scores.profile, []).append(scores.name)
+    if len(profiles) > 1:
+        print("these rows use different metric profiles, so their numbers do not compare: "
+              + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
     for scores in runs:
         where = f" in {scores.path}" if len(runs) > 1 else ""
         if scores.missing:

@@ -172,6 +172,20 @@ def test_report_of_an_interrupted_run_names_the_sequences_without_results(tmp_pa
     assert "without results" not in capsys.readouterr().out
 
 
+
+def test_a_report_of_runs_scored_under_different_profiles_says_so(tmp_path, capsys):
+    """QA pass: a pysot-toolkit row and a default row were put in one table without a word."""
+    d, seqs = toy_run_folder(tmp_path)
+    other = tmp_path / "other"
+    evaluate.evaluate_run(d, seqs)   # writes its scores.json
+    evaluate.save_scores(other, evaluate.evaluate_results(d, seqs, profile="pysot-toolkit", name="pysot"))
+    assert cli.main(["report", str(d), str(other)]) == 0
+    assert "different metric profiles, so their numbers do not compare: default: run; pysot-toolkit: pysot" \
+        in capsys.readouterr().out
+    assert cli.main(["report", str(d)]) == 0
+    assert "different metric profiles" not in capsys.readouterr().out
+
+
 def test_the_hz_columns_keep_one_order_after_a_round_trip_through_scores_json(tmp_path):
     """``run`` printed tracker, egomotion, estimator; ``report`` of the same run, read back from
     scores.json (keys sorted), printed egomotion, estimator, tracker (QA pass)."""
