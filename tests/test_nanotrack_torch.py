@@ -95,3 +95,35 @@ def test_nanotrack_tracker_on_the_torch_backend_follows_the_published_onnx(paths
         assert a.confidence == pytest.approx(b.confidence, abs=1e-3)
     with pytest.raises(ValueError, match="needs `checkpoint`"):
         NanoTrack(NanoTrack.Params(backend="torch"))
+
+
+def test_the_torch_backend_takes_its_device_and_checks_it_before_the_run(paths, tmp_path, monkeypatch):
+    """QA pass: ``device: cuda`` ran on the CPU without a word (the device never reached torch),
+    and a missing checkpoint passed the preflight. The model now moves to the device, and the
+    preflight refuses what cannot run here."""
+    import torch
+
+    from mata_eval_plugins.trackers.backends import BackendUnavailable
+    from mata_eval_plugins.trackers.nanotrack import NanoTrack
+    from mata_eval_plugins.trackers import nanotrack_torch
+
+    seen = []
+    real = nanotrack_torch.load_nanotrack_v2
+
+    class Spy(torch.nn.Module):
+        def to(self, device):
+            seen.append(device)
+            return self
+
+    monkeypatch.setattr(nanotrack_torch, "load_nanotrack_v2", lambda path, trust=False: Spy())
+    nanotrack_torch.torch_runners(paths["pth"], device="cuda")
+    assert seen == ["cuda"]
+    monkeypatch.setattr(nanotrack_torch, "load_nanotrack_v2", real)
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(BackendUnavailable, match="device cuda, but this torch has no CUDA device"):
+        NanoTrack(NanoTrack.Params(backend="torch", checkpoint=str(paths["pth"]), device="cuda")).check()
+    with pytest.raises(BackendUnavailable, match="device tensorrt is not a torch device"):
+        NanoTrack(NanoTrack.Params(backend="torch", checkpoint=str(paths["pth"]), device="tensorrt")).check()
+    with pytest.raises(BackendUnavailable, match="checkpoint not found: .*expected nanotrackv2.pth from"):
+        NanoTrack(NanoTrack.Params(backend="torch", checkpoint=str(tmp_path / "no.pth"))).check()
+    NanoTrack(NanoTrack.Params(backend="torch", checkpoint=str(paths["pth"]))).check()   # cpu: fine

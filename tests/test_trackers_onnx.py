@@ -256,3 +256,23 @@ def test_registered(models):
 
     trackers = load_registry().plugins["tracker"]
     assert trackers["vittrack"].cls is VitTrack and trackers["nanotrack"].cls is NanoTrack
+
+
+def test_another_trackers_model_is_refused_by_the_preflight(models, tmp_path):
+    """QA pass: NanoTrack's head given as VitTrack's model (or the pair swapped) passed
+    `validate`, then failed every sequence with ONNX Runtime's 'required inputs are missing'."""
+    from mata_eval_plugins.trackers.backends import BackendUnavailable
+
+    m = {"vittrack": models / "models/vittrack/object_tracking_vittrack_2023sep.onnx",
+         "nano_backbone": models / "models/nanotrack/v2/nanotrack_backbone_sim.onnx",
+         "nano_head": models / "models/nanotrack/v2/nanotrack_head_sim.onnx"}
+    with pytest.raises(BackendUnavailable, match=r"takes the inputs input1, input2, not template, search: it is not "
+                                                  r"VitTrack's object_tracking_vittrack_2023sep.onnx"):
+        VitTrack(VitTrack.Params(model=str(m["nano_head"]))).check()
+    with pytest.raises(BackendUnavailable, match=r"it is not NanoTrack's backbone"):
+        NanoTrack(NanoTrack.Params(backbone=str(m["nano_head"]), head=str(m["nano_backbone"]))).check()
+    (tmp_path / "junk.onnx").write_bytes(b"not a model")
+    with pytest.raises(BackendUnavailable, match=r"junk.onnx: not an ONNX model"):
+        VitTrack(VitTrack.Params(model=str(tmp_path / "junk.onnx"))).check()
+    VitTrack(VitTrack.Params(model=str(m["vittrack"]))).check()       # the right files pass
+    NanoTrack(NanoTrack.Params(backbone=str(m["nano_backbone"]), head=str(m["nano_head"]))).check()

@@ -45,6 +45,23 @@ def open_onnx(path: str | Path, backend: Backend = "onnxruntime", device: Device
     raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
 
 
+def check_inputs(path: str | Path, expected: tuple[str, ...], model: str) -> None:
+    """Raise :class:`BackendUnavailable` when the ONNX graph at ``path`` does not take the
+    inputs ``expected`` (another tracker's model, or the other half of a pair): caught by the
+    preflight instead of failing every sequence with ONNX Runtime's 'required inputs are
+    missing'. ``model`` names the file expected. Reads the graph on the CPU (about 0.1 s)."""
+    import onnxruntime as ort
+
+    try:
+        names = tuple(i.name for i in ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_inputs())
+    except Exception as exc:   # not an ONNX graph at all
+        raise BackendUnavailable(f"{path}: not an ONNX model ONNX Runtime can read ({type(exc).__name__}); "
+                                 f"expected {model}") from None
+    if sorted(names) != sorted(expected):
+        raise BackendUnavailable(f"{path} takes the inputs {', '.join(names)}, not {', '.join(expected)}: "
+                                 f"it is not {model} (another tracker's model?)")
+
+
 def check_backend(backend: Backend, device: Device = "cpu") -> None:
     """Raise :class:`BackendUnavailable` (one line: what is missing, what to install) when
     ``backend`` cannot run on ``device`` here; cheap: no model is opened (preflight)."""

@@ -184,7 +184,8 @@ class NanoTrack:
         head: str | None = param(None, "path to nanotrack_head_sim.onnx (or $MATA_NANOTRACK_HEAD)")
         backend: Literal["onnxruntime", "tensorrt", "torch"] = param("onnxruntime", "inference backend ('torch' runs `checkpoint`)")
         checkpoint: str | None = param(None, "torch backend: nanotrackv2.pth (loaded weights-only)")
-        device: Literal["cpu", "cuda", "tensorrt"] = param("cpu", "ONNX Runtime device / provider")
+        device: Literal["cpu", "cuda", "tensorrt"] = param("cpu", "ONNX Runtime device / provider; torch device "
+                                                                   "(cpu or cuda) for the torch backend")
         threads: int = param(1, "ONNX Runtime intra-op threads (0 = library default)")
         window_influence: float = param(0.455, "cosine window weight (cv2.TrackerNano)")
         penalty_k: float = param(0.055, "scale/ratio change penalty")
@@ -215,22 +216,35 @@ class NanoTrack:
 
     def check(self) -> None:
         """Preflight: the model files were found (``__init__``); the backend can run here."""
-        from .backends import BackendUnavailable, check_backend
+        from .backends import BackendUnavailable, check_backend, check_inputs
 
         if self.params.backend == "torch":
             try:
-                import torch  # noqa: F401
+                import torch
             except ImportError:
                 raise BackendUnavailable("the torch backend needs torch: pip install 'mata-eval[torch]'") from None
+            if self.params.device == "tensorrt":
+                raise BackendUnavailable("nanotrack: device tensorrt is not a torch device; use backend: tensorrt "
+                                         "with the ONNX pair, or device cpu / cuda")
+            if self.params.device == "cuda" and not torch.cuda.is_available():
+                raise BackendUnavailable("nanotrack: device cuda, but this torch has no CUDA device "
+                                         f"(torch {torch.__version__}); use device: cpu")
+            if not Path(self.params.checkpoint).is_file():
+                from .nanotrack_torch import SOURCE
+
+                raise BackendUnavailable(f"nanotrack: checkpoint not found: {self.params.checkpoint} "
+                                         f"(expected nanotrackv2.pth from {SOURCE})")
             return
 
         check_backend(self.params.backend, self.params.device)
+        check_inputs(self._backbone_path, ("input",), "NanoTrack's backbone nanotrack_backbone_sim.onnx")
+        check_inputs(self._head_path, ("input1", "input2"), "NanoTrack's head nanotrack_head_sim.onnx")
 
     def _networks(self):
         if self._nets is None and self.params.backend == "torch":
             from .nanotrack_torch import torch_runners
 
-            self._nets = torch_runners(self.params.checkpoint, threads=self.params.threads)
+            self._nets = torch_runners(self.params.checkpoint, threads=self.params.threads, device=self.params.device)
         if self._nets is None:
             from .backends import open_onnx
 

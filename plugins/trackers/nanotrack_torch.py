@@ -254,8 +254,9 @@ def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, t
                 obj = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, "
-                         "pass trust_pickle (CLI: --trust-pickle)") from exc
+        raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, export "
+                         "it with `mata-eval export nanotrack --checkpoint FILE --trust-pickle` and use the "
+                         "ONNX pair (the nanotrack tracker's torch backend loads weights only)") from exc
     sd = obj.get("state_dict", obj) if isinstance(obj, dict) else None
     if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
         raise ValueError(f"{path}: expected a dict with 'state_dict' (tensors) or a bare state_dict")
@@ -280,23 +281,27 @@ def load_nanotrack_v2(path: str | Path, trust_pickle: bool = False) -> NanoTrack
     return model.eval()
 
 
-def torch_runners(checkpoint: str | Path, trust_pickle: bool = False, threads: int = 0):
+def torch_runners(checkpoint: str | Path, trust_pickle: bool = False, threads: int = 0, device: str = "cpu"):
     """The backbone and head as ``run(feeds) -> outputs`` callables with the published ONNX
     pair's names (``input`` -> ``output``; ``input1``, ``input2`` -> ``output1``, ``output2``), so
-    the ``nanotrack`` tracker runs on torch with its ONNX pre/post-processing unchanged."""
+    the ``nanotrack`` tracker runs on torch with its ONNX pre/post-processing unchanged; the
+    model runs on ``device`` (a torch device string)."""
     import numpy as np
 
     if threads > 0:
         torch.set_num_threads(threads)
-    model = load_nanotrack_v2(checkpoint, trust_pickle)
+    model = load_nanotrack_v2(checkpoint, trust_pickle).to(device)
+
+    def tensor(a):
+        return torch.from_numpy(np.ascontiguousarray(a)).to(device)
 
     def backbone(feeds):
         with torch.inference_mode():
-            return {"output": model.backbone(torch.from_numpy(np.ascontiguousarray(feeds["input"]))).numpy()}
+            return {"output": model.backbone(tensor(feeds["input"])).cpu().numpy()}
 
     def head(feeds):
         with torch.inference_mode():
-            cls, loc = model.ban_head(torch.from_numpy(feeds["input1"]), torch.from_numpy(feeds["input2"]))
-        return {"output1": cls.numpy(), "output2": loc.numpy()}
+            cls, loc = model.ban_head(tensor(feeds["input1"]), tensor(feeds["input2"]))
+        return {"output1": cls.cpu().numpy(), "output2": loc.cpu().numpy()}
 
     return backbone, head

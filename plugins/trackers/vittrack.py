@@ -129,10 +129,12 @@ class VitTrack:
         self._box: np.ndarray | None = None
 
     def check(self) -> None:
-        """Preflight: the model file was found (``__init__``); the backend can run here."""
-        from .backends import check_backend
+        """Preflight: the model file was found (``__init__``) and is VitTrack's; the backend can
+        run here."""
+        from .backends import check_backend, check_inputs
 
         check_backend(self.params.backend, self.params.device)
+        check_inputs(self._path, ("template", "search"), "VitTrack's object_tracking_vittrack_2023sep.onnx")
 
     def _net(self):
         if self._run is None:
