@@ -76,6 +76,14 @@ def test_ostrack_onnxruntime_follows_torch(tmp_path):
 def test_backend_setup_errors_name_what_is_missing(tmp_path):
     with pytest.raises(ValueError, match="needs `onnx`"):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime"))
+    # an export of another variant is refused when the tracker is built (the preflight), not
+    # run with the wrong crop sizes (QA pass: variant B on an export of S ran, SR 17.1)
+    torch.manual_seed(4)
+    E.export_mixformerv2(tmp_path / "s", network=vit.MixFormerV2Net(TINY_MF).eval(), seed=4, variant="S")
+    with pytest.raises(ValueError, match=r"export.json: an export of variant S, but the tracker says variant: B"):
+        MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "s"), variant="B"))
+    with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export mixformerv2"):
+        MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "none")))
     t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
     with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export ostrack"):
         t.initialize(_frames(1)[0], Box(40, 30, 20, 20))

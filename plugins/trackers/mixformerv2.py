@@ -159,6 +159,14 @@ class MixFormerV2:
         self._path = None
         if p.backend != "torch" and network is None and not p.onnx:
             raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export mixformerv2`")
+        if p.backend != "torch" and network is None:   # the export's variant, before any frame
+            from mata_eval.deploy.export import MANIFEST, read_manifest
+
+            exported = read_manifest(p.onnx, "mixformerv2").get("config", {}).get("variant")
+            if exported is not None and exported != p.variant:
+                raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: an export of variant {exported}, but the "
+                                 f"tracker says variant: {p.variant}; set variant: {exported} or export variant "
+                                 f"{p.variant} (mata-eval export mixformerv2 --variant {p.variant})")
         if network is None and not p.random_weights and p.backend == "torch":  # fail early, naming the file
             self._path = checkpoint_path(p.checkpoint, self.variant.env_var, self.variant.file_name, SOURCE)
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
