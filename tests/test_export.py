@@ -155,3 +155,13 @@ def test_nanotrack_from_pth_matches_the_published_pair_and_tracks(shared_data, t
         a, b = ours.track(f), ref.track(f)
         np.testing.assert_allclose(a.box.as_array(), b.box.as_array(), atol=1.0)
         assert a.confidence == pytest.approx(b.confidence, abs=1e-3)
+
+
+def test_a_missing_export_package_is_named_with_what_to_install(monkeypatch):
+    """QA pass: without onnx the advice was `pip install torch onnx onnxruntime`, and a plain
+    `pip install torch` is the wrong advice on a Jetson."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "onnx", None)
+    with pytest.raises(RuntimeError, match=r"\(onnx is missing\): pip install onnx$"):
+        E._require_export_stack()

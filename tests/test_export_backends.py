@@ -111,3 +111,19 @@ def test_tensorrt_backend_is_skipped_or_explains(tmp_path):
         t.initialize(frames[0], Box(40, 30, 20, 20))
     a, b = ref.track(frames[1]), trt.track(frames[1])
     np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=0.5)
+
+
+def test_the_preflight_checks_the_torch_device(monkeypatch, tmp_path):
+    """QA pass: `device: cuda` on a torch without CUDA, or `device: foo`, passed `validate` and
+    failed every sequence with torch's own error."""
+    from mata_eval_plugins.trackers.backends import BackendUnavailable
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    for cls in (MixFormerV2, OSTrack):
+        cls(cls.Params(random_weights=True)).check()                    # cpu: fine
+        with pytest.raises(BackendUnavailable, match=r"device 'cuda', but this torch .* has no CUDA device"):
+            cls(cls.Params(random_weights=True, device="cuda")).check()
+        with pytest.raises(BackendUnavailable, match=r"device 'foo' is not a torch device"):
+            cls(cls.Params(random_weights=True, device="foo")).check()
+        with pytest.raises(BackendUnavailable, match=r"the torch backend runs on cpu or cuda"):
+            cls(cls.Params(random_weights=True, device="meta")).check()

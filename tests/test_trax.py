@@ -289,3 +289,17 @@ def test_real_tracker_over_trax_gives_the_in_process_boxes(plugin, mountainbike,
     np.testing.assert_array_equal(a.confidence, b.confidence)  # sent as repr(): exact
     centres = a.boxes[:, :2] + a.boxes[:, 2:] / 2
     assert np.ptp(centres, axis=0).max() > 20, "the boxes should move: otherwise the comparison says little"
+
+
+def test_the_preflight_names_a_missing_command_and_a_missing_client(monkeypatch, tmp_path):
+    """QA pass: a command that does not exist, or vot-trax not installed, passed `validate` and
+    failed every sequence (the latter with a bare ImportError)."""
+    from mata_eval_plugins.trackers.backends import BackendUnavailable
+
+    scripted().check()                                          # python + a script: fine
+    TraxTracker(TraxTracker.Params(command=["scripted_server.py"], cwd=str(SERVERS))).check()  # relative to cwd
+    with pytest.raises(BackendUnavailable, match=r"trax: command not found: '/nonexistent/tracker'"):
+        TraxTracker(TraxTracker.Params(command=["/nonexistent/tracker"])).check()
+    monkeypatch.setitem(sys.modules, "trax", None)              # import trax now fails
+    with pytest.raises(BackendUnavailable, match=r"needs the TraX client \(vot-trax\): pip install 'mata-eval\[trax\]'"):
+        scripted().check()

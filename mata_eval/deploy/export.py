@@ -69,8 +69,9 @@ def _require_export_stack() -> None:
         import onnx  # noqa: F401  (torch's exporter needs it)
         import torch  # noqa: F401
     except ImportError as exc:
-        raise RuntimeError(f"mata-eval export needs torch and onnx ({exc.name} is missing): "
-                           "pip install torch onnx onnxruntime") from None
+        how = ("pip install onnx" if exc.name == "onnx" else
+               "pip install torch (on a Jetson, the torch wheel of its JetPack)")
+        raise RuntimeError(f"mata-eval export needs torch and onnx ({exc.name} is missing): {how}") from None
 
 
 def export_module(module: Any, args: Sequence[Any], path: Path, input_names: Sequence[str],

@@ -45,6 +45,29 @@ def open_onnx(path: str | Path, backend: Backend = "onnxruntime", device: Device
     raise ValueError(f"unknown backend {backend!r}; expected 'onnxruntime' or 'tensorrt'")
 
 
+def check_device(backend: str, device: str) -> None:
+    """Preflight of a transformer tracker's ``backend`` and ``device``: a torch device string
+    torch parses and has here (``cuda`` needs a CUDA build and a GPU), or what
+    :func:`check_backend` accepts for the exported graphs."""
+    if backend != "torch":
+        check_backend(backend, device)   # type: ignore[arg-type]
+        return
+    try:
+        import torch
+    except ImportError:
+        raise BackendUnavailable("the torch backend needs torch: pip install 'mata-eval[torch]'") from None
+
+    try:
+        dev = torch.device(device)
+    except RuntimeError:
+        raise BackendUnavailable(f"device {device!r} is not a torch device (cpu, cuda, cuda:1, ...)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise BackendUnavailable(f"device {device!r}, but this torch ({torch.__version__}) has no CUDA device; "
+                                 "use device: cpu")
+    if dev.type not in ("cpu", "cuda"):
+        raise BackendUnavailable(f"device {device!r}: the torch backend runs on cpu or cuda")
+
+
 def check_inputs(path: str | Path, expected: tuple[str, ...], model: str) -> None:
     """Raise :class:`BackendUnavailable` when the ONNX graph at ``path`` does not take the
     inputs ``expected`` (another tracker's model, or the other half of a pair): caught by the

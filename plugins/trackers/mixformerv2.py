@@ -172,6 +172,12 @@ class MixFormerV2:
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
         self._state: Box | None = None
 
+    def check(self) -> None:
+        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        from .backends import check_device
+
+        check_device(self.params.backend, self.params.device)
+
     # -- network ---------------------------------------------------------------------------
 
     def network(self):

@@ -87,6 +87,12 @@ class OSTrack:
             self._path = checkpoint_path(p.checkpoint, ENV_VAR, FILE_NAME, SOURCE)
         self._state: Box | None = None
 
+    def check(self) -> None:
+        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        from .backends import check_device
+
+        check_device(self.params.backend, self.params.device)
+
     def network(self):
         """The torch network (built and loaded on first call)."""
         if self._net is None and self.params.backend != "torch":

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import collections
 import os
+import shutil
 import signal
 import subprocess
 import tempfile
@@ -166,6 +167,20 @@ class TraxTracker:
         self._proc: _Process | None = None
         self._reaper: weakref.finalize | None = None
         self._frame = 0
+
+    def check(self) -> None:
+        """Preflight: the TraX client library is installed and the tracker's command exists."""
+        from .backends import BackendUnavailable
+
+        try:
+            import trax  # noqa: F401
+        except ImportError:
+            raise BackendUnavailable("the trax tracker needs the TraX client (vot-trax): "
+                                     "pip install 'mata-eval[trax]'") from None
+        exe = self.params.command[0]
+        if shutil.which(exe) is None and not (Path(self.params.cwd or ".") / exe).is_file():
+            raise BackendUnavailable(f"trax: command not found: {exe!r} (on PATH, or relative to cwd "
+                                     f"{self.params.cwd or '.'!r})")
 
     # --- process lifecycle ------------------------------------------------------------------
 
