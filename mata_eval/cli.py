@@ -209,9 +209,17 @@ def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -
     from .core.params import build_params
     from .data.occlusion import OcclusionParams, augment_sequence
 
+    from .core.sequence import FrameReadError
+
     params, seed = build_params(OcclusionParams, config["occlusion"]), int(config.get("seed", 0))
+    try:
+        augmented = [augment_sequence(s, params, seed) for s in seqs]
+    except FrameReadError as exc:   # annotations only: the occluders' placement needs the image size
+        print(f"{results_dir}: scored without the run's occlusion augmentation (no AOC group, no occluded-frame "
+              f"scores): it needs each sequence's frame 0 ({exc})")
+        return seqs
     print(f"{results_dir}: with the run's occlusion augmentation (seed {seed})")
-    return [augment_sequence(s, params, seed) for s in seqs]
+    return augmented
 
 
 def cmd_eval(args: argparse.Namespace) -> int:

@@ -294,3 +294,16 @@ def test_eval_of_an_occluded_run_folder_gives_back_the_runs_own_scores(tmp_path,
     assert "with the run's occlusion augmentation (seed 3)" in capsys.readouterr().out
     again = json.loads((tmp_path / "again" / "scores.json").read_text())
     assert again["summary"] == own["summary"] and again["sequences"] == own["sequences"]
+
+
+def test_rescoring_an_occluded_run_without_its_frames_says_what_is_lost(capsys):
+    """The occluders' placement needs each sequence's image size (frame 0): annotations only,
+    the run is scored without the augmentation and the user is told, not given a traceback."""
+    seqs = make_sequences()[:1]          # annotations only: no frames
+    import dataclasses
+
+    from mata_eval.data.occlusion import OcclusionParams
+
+    config = {"dataset": {"name": "toy"}, "occlusion": dataclasses.asdict(OcclusionParams()), "seed": 1}
+    assert cli._as_the_run_saw_them(seqs, "RUN", config) is seqs
+    assert "RUN: scored without the run's occlusion augmentation (no AOC group" in capsys.readouterr().out
