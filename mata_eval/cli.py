@@ -207,9 +207,8 @@ def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -
     if not config.get("occlusion"):
         return seqs
     from .core.params import build_params
-    from .data.occlusion import OcclusionParams, augment_sequence
-
     from .core.sequence import FrameReadError
+    from .data.occlusion import OcclusionParams, augment_sequence
 
     params, seed = build_params(OcclusionParams, config["occlusion"]), int(config.get("seed", 0))
     try:
