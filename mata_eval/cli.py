@@ -442,8 +442,11 @@ def cmd_augment(args: argparse.Namespace) -> int:
 
             sequences = read_suite(args.root, args.sequences)
         else:
+            from .core.params import parse_key_values
+
             entry = load_registry().get("dataset", args.dataset)
-            block = {k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}
+            block = {**parse_key_values(args.set or ()),   # e.g. fps=10: event durations are in seconds
+                     **{k: v for k, v in (("root", args.root), ("sequences", args.sequences)) if v is not None}}
             dataset = entry.cls(build_params(entry.cls.Params, block, ("dataset",)))
             sequences = dataset.sequences()
     except (ConfigError, KeyError, ValueError) as e:
@@ -689,6 +692,8 @@ def _add_augment(subparsers) -> None:
                         "written by `mata-eval synth` at --root)")
     p.add_argument("--root", help="the dataset's root folder (its `root` parameter)")
     p.add_argument("--sequences", nargs="*", help="only these sequences")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="another dataset parameter, e.g. fps=10 for 10 fps footage (repeatable)")
     p.add_argument("--seed", type=int, default=0, help="experiment seed (default 0)")
     p.add_argument("--n-events", type=int, default=None, help="events per sequence")
     p.add_argument("--shapes", nargs="*", choices=SHAPES, help="shape families, cycled over the events")

@@ -5,6 +5,7 @@ UAV123-layout copy and the experiment-block parameters."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import cv2
 import numpy as np
@@ -224,3 +225,26 @@ matrix:
         np.testing.assert_array_equal(x.meta["occlusion"], y.meta["occlusion"])
         assert all(np.array_equal(x.image(k), y.image(k)) for k in range(len(x)))
         assert not np.array_equal(np.nan_to_num(x.meta["occlusion"]), np.nan_to_num(z.meta["occlusion"]))
+
+
+def test_augment_cli_takes_dataset_parameters_such_as_the_frame_rate(tmp_path):
+    """QA pass: `augment` had no way to pass a dataset's parameters, so a 10 fps folder was
+    augmented as 30 fps and a 1 s event covered 3 s of it. With --set fps=10 an event of
+    --duration 1 spans 11 frames (its first and 10 more), not 31."""
+    seq = tmp_path / "data" / "clip"
+    (seq / "img").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for k in range(60):
+        cv2.imwrite(str(seq / "img" / f"{k + 1:04d}.jpg"), rng.integers(0, 255, (64, 96, 3), dtype=np.uint8))
+    (seq / "groundtruth_rect.txt").write_text("30,20,20,20\n" * 60)
+    parser = build_parser()
+    spans = {}
+    for fps in (None, 10):
+        out = tmp_path / f"aug{fps}"
+        argv = ["augment", str(out), "--dataset", "folder", "--root", str(tmp_path / "data"),
+                "--n-events", "1", "--duration", "1", "--seed", "2"] + (["--set", f"fps={fps}"] if fps else [])
+        args = parser.parse_args(argv)
+        assert args.func(args) == 0
+        (event,) = json.loads((out / "anno" / "UAV123" / "occlusion" / "clip.events.json").read_text())
+        spans[fps] = event["end"] - event["start"] + 1
+    assert spans == {None: 31, 10: 11}, spans   # duration x fps frames after the first
