@@ -239,7 +239,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return 2
     all_scores = []
     try:
-        first = _run_config(args.results_dirs[0], args.dataset)
+        configs = {d: _run_config(d, args.dataset) for d in args.results_dirs}   # each manifest read once
+        first = configs[args.results_dirs[0]]
         if args.root is None and not sets and first:
             # a run folder of this dataset: the dataset as that run loaded it, not the default
             # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count)
@@ -249,7 +250,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         for results_dir in args.results_dirs:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
-                run_seqs = _as_the_run_saw_them(seqs, results_dir, _run_config(results_dir, args.dataset))
+                run_seqs = _as_the_run_saw_them(seqs, results_dir, configs[results_dir])
                 scores = evaluate_results(results_dir, run_seqs, args.profile, layout="mata")
                 if not args.no_save:
                     try:

@@ -457,10 +457,11 @@ def read_occlusion_metadata(folder: Path, name: str) -> tuple[np.ndarray, bool] 
 
 def load_occlusion(root: str | Path, seq: str) -> np.ndarray:
     """Per-frame covered fraction written by :func:`write_augmented` (NaN where no box)."""
-    path = Path(root) / "anno" / "UAV123" / "occlusion" / f"{seq}.txt"
-    if not path.is_file():
-        raise FileNotFoundError(f"occlusion metadata not found: {path} (written by `mata-eval augment`)")
-    return np.array([float(v) for v in path.read_text().split()])
+    folder = Path(root) / "anno" / "UAV123" / "occlusion"
+    written = read_occlusion_metadata(folder, seq)
+    if written is None:
+        raise FileNotFoundError(f"occlusion metadata not found: {folder / f'{seq}.txt'} (written by `mata-eval augment`)")
+    return written[0]
 
 
 def write_augmented(sequences: Seq[Sequence], out: str | Path, params: OcclusionParams, seed: int, *,

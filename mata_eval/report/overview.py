@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Iterable, Sequence
 
 from ..score.evaluate import RunScores
 from ..score.metrics import DEFAULT_GROUPS
@@ -51,28 +51,22 @@ def _num(v: float) -> str:
 _BLOCK_ORDER = ("tracker", "egomotion", "estimator")
 
 
+def _in_order(keys: Iterable[Iterable[str]], canonical: Iterable[str]) -> list[str]:
+    """The distinct ``keys`` (each run's), in ``canonical`` order, then any other as first seen:
+    the same whether the scores are fresh or read back from scores.json (whose keys are sorted)."""
+    rank = {k: i for i, k in enumerate(canonical)}
+    seen = dict.fromkeys(k for ks in keys for k in ks)
+    return sorted(seen, key=lambda k: rank.get(k, len(rank)))   # stable: the others keep their order
+
+
 def _blocks(runs: Sequence[RunScores]) -> list[str]:
-    """The blocks with a Hz column, in one order whether the scores are fresh or read back from
-    scores.json (whose keys are sorted): tracker, egomotion, estimator, then any other."""
-    seen: list[str] = []
-    for r in runs:
-        for b in r.frequencies:
-            if b not in seen:
-                seen.append(b)
-    rank = {b: i for i, b in enumerate(_BLOCK_ORDER)}
-    return sorted(seen, key=lambda b: (rank.get(b, len(rank)), seen.index(b)))
+    """The blocks with a Hz column: tracker, egomotion, estimator, then any other."""
+    return _in_order((r.frequencies for r in runs), _BLOCK_ORDER)
 
 
 def _group_names(runs: Sequence[RunScores]) -> list[str]:
-    """The challenge groups, in the order of DEFAULT_GROUPS (the paper's Table 2), then any
-    other: the same whether the scores are fresh or read back from scores.json (keys sorted)."""
-    names: list[str] = []
-    for r in runs:
-        for g in r.summary.groups:
-            if g not in names:
-                names.append(g)
-    rank = {g: i for i, g in enumerate(DEFAULT_GROUPS)}
-    return sorted(names, key=lambda g: (rank.get(g, len(rank)), names.index(g)))
+    """The challenge groups in the order of DEFAULT_GROUPS (the paper's Table 2), then any other."""
+    return _in_order((r.summary.groups for r in runs), DEFAULT_GROUPS)
 
 
 def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:

@@ -136,9 +136,9 @@ class LocalExecutor:
         action anyway, and results are written atomically."""
         lost = []
         context = multiprocessing.get_context()
-        parent = None if context.get_start_method() == "forkserver" else os.getpid()
-        forking = context.get_start_method() == "fork"
-        with stop.deferred(), (_opencv_threads_stopped() if forking else contextlib.nullcontext()):
+        method = context.get_start_method()
+        parent = None if method == "forkserver" else os.getpid()
+        with stop.deferred(), (_opencv_threads_stopped() if method == "fork" else contextlib.nullcontext()):
             pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
                                        initargs=(parent,))
             try:

@@ -467,7 +467,7 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, "estimator", k, tk, estimator.step, tk, (), dets)
                     wall_ms["estimator"][k] += 1e3 * (clock() - t0)
-                    _check_estimate(value, k, tk)
+                    _check_output("estimator", value, k, tk)
                     value = bounded(value)
                     boards["estimator"].post(value, tk, k, est_tick)
                 continue
@@ -501,7 +501,7 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
-                    _check_output(value, k, tk)
+                    _check_output("tracker", value, k, tk)
                     bx, ex = value.box, value.extra or {}
                     tracker_calls[k] = (bx.x, bx.y, bx.w, bx.h) + tuple(
                         float(ex.get(c, math.nan)) for c in ("search_x", "search_y", "search_w", "search_h"))
@@ -516,7 +516,7 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
-                _check_estimate(value, k, tk)
+                _check_output("estimator", value, k, tk)
                 value = bounded(value)
             t_pub = publish(b, k, tk, value, wall, first)
             if b == "estimator" and not first:
@@ -532,7 +532,7 @@ def sequence_steps(
             t0 = clock()
             value = _call(alarm, "tracker", k, ts, tracker.track, frame_image(), prior_at(ts))
             wall = clock() - t0
-            _check_output(value, k, ts)
+            _check_output("tracker", value, k, ts)
             publish("tracker", k, ts, value, wall, False)
 
         # Zero-order hold: the newest output of the output block visible at t_k.
@@ -610,12 +610,16 @@ def _call(alarm: _CallAlarm, block: str, k: int, t: float, fn: Callable, *args: 
         raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}") from exc
 
 
+#: the type each block's call returns
+OUTPUT_TYPES = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Estimate}
+
+
 def output_problem(block: str, value: Any) -> str | None:
     """What is wrong with a block's output, or None: the type the block promises, for the
     tracker and the estimator a :class:`Box` of four finite numbers, for the tracker a
     confidence that is a number in [0, 1]. The scheduler, the live runtime and ``mata-eval
     profile`` check every call with it."""
-    want = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Estimate}[block]
+    want = OUTPUT_TYPES[block]
     if not isinstance(value, want):
         return f"expected a {want.__name__}, got {type(value).__name__}"
     if block == "egomotion":
@@ -631,19 +635,15 @@ def output_problem(block: str, value: Any) -> str | None:
     return None
 
 
-def _check_output(value: Any, k: int, t: float) -> None:
-    if (problem := output_problem("tracker", value)) is not None:
-        raise BlockError("tracker", k, t, problem)
-
-
-def _check_estimate(value: Any, k: int, t: float) -> None:
-    if (problem := output_problem("estimator", value)) is not None:
-        raise BlockError("estimator", k, t, problem)
+def _check_output(block: str, value: Any, k: int, t: float) -> None:
+    if (problem := output_problem(block, value)) is not None:
+        raise BlockError(block, k, t, problem)
 
 
 def _is_number(v: Any) -> bool:
-    """A real number (numpy's included), not a string or a bool."""
-    return isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+    """A real number (numpy's included), not a string or a bool; a float first (every estimate
+    of a run passes here: the ABC check costs a few hundred ns)."""
+    return type(v) is float or (isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_)))
 
 
 def _finite(box: Box) -> bool:

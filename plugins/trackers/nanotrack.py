@@ -216,19 +216,10 @@ class NanoTrack:
 
     def check(self) -> None:
         """Preflight: the model files were found (``__init__``); the backend can run here."""
-        from .backends import BackendUnavailable, check_backend, check_inputs
+        from .backends import BackendUnavailable, check_backend, check_device, check_inputs
 
         if self.params.backend == "torch":
-            try:
-                import torch
-            except ImportError:
-                raise BackendUnavailable("the torch backend needs torch: pip install 'mata-eval[torch]'") from None
-            if self.params.device == "tensorrt":
-                raise BackendUnavailable("nanotrack: device tensorrt is not a torch device; use backend: tensorrt "
-                                         "with the ONNX pair, or device cpu / cuda")
-            if self.params.device == "cuda" and not torch.cuda.is_available():
-                raise BackendUnavailable("nanotrack: device cuda, but this torch has no CUDA device "
-                                         f"(torch {torch.__version__}); use device: cpu")
+            check_device("torch", self.params.device)
             if not Path(self.params.checkpoint).is_file():
                 from .nanotrack_torch import SOURCE
 
