@@ -23,7 +23,6 @@ import numpy as np
 import torch
 
 from mata_eval.types import Box
-from mata_eval_plugins.trackers import vit
 from mata_eval_plugins.trackers.mixformerv2 import MixFormerV2
 from mata_eval_plugins.trackers.ostrack import OSTrack
 
@@ -87,7 +86,7 @@ def bench_ostrack(n: int, warmup: int) -> None:
     print(f"OSTrack-256 CE ({params:.2f} M params)")
     print(f"  full forward, CE off {off:7.1f} ms   (baseline)")
     print(f"  full forward, CE on  {on:7.1f} ms   x{off / on:.2f} faster (keep 0.7 at blocks 3, 6, 9)")
-    print(f"  cached forward           n/a      (template tokens attend to the search region)")
+    print("  cached forward           n/a      (template tokens attend to the search region)")
     print(f"  track() per frame    {track:7.1f} ms   (1280x720, CE on)")
 
 

@@ -414,7 +414,20 @@ def cmd_per_sequence(args: argparse.Namespace) -> int:
     except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(render(t, "latex" if args.format == "latex" else "markdown"))
+    # Markdown on the terminal by default (the table is meant to be pasted); --format picks another,
+    # and with --out each format goes into per_sequence.<ext> (all: every one), as for the run tables
+    fmts = [f for f in EXTENSIONS if f != "terminal"] if args.format == "all" else \
+        ["markdown" if args.format == "terminal" else args.format]
+    if not args.out:
+        for fmt in fmts:
+            print(render(t, fmt))
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for fmt in fmts:
+        path = out / f"per_sequence.{EXTENSIONS[fmt]}"
+        path.write_text(render(t, fmt))
+        print(f"wrote {path}")
     return 0
 
 
@@ -676,7 +689,7 @@ def _add_report(subparsers) -> None:
                         "several tables)")
     p.add_argument("--per-sequence", action="store_true",
                    help="two run folders A B: SR, NT2F and first failure frame of each sequence side by side "
-                        "(Markdown, or LaTeX with --format latex)")
+                        "(Markdown, or the --format given; with --out written to per_sequence.md / .csv / .tex)")
     p.set_defaults(func=cmd_report)
 
 

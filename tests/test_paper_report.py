@@ -296,6 +296,15 @@ def test_per_sequence_comparison_cli(tmp_path, capsys):
     assert rows[3] == ["s2", "", "100.0", "80.0", "-20.0", "100.0", "80.0", "-20.0", "-", "16"]
     assert rows[4] == ["mean (2)", "", "60.0", "65.0", "+5.0", "60.0", "65.0", "+5.0", "", ""]
     assert cli.main(["report", "--per-sequence", str(a)]) == 2
+    # --format and --out are honoured (QA pass: they were ignored, Markdown always printed)
+    capsys.readouterr()
+    assert cli.main(["report", "--per-sequence", str(a), str(b), "--format", "csv"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("Sequence,Attributes,SR A") and lines[1].startswith("s1,POC,20")
+    out = tmp_path / "rep"
+    assert cli.main(["report", "--per-sequence", str(a), str(b), "--out", str(out), "--format", "all"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["per_sequence.csv", "per_sequence.md", "per_sequence.tex"]
+    assert (out / "per_sequence.csv").read_text().splitlines()[2].startswith("s2,,100")
 
 
 def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):

@@ -75,6 +75,30 @@ def test_boxes_are_drawn_where_they_are(shared_data):
     assert out.shape[0] > img.shape[0] and np.array_equal(out[:, :90][200:290], img[:, :90][200:290])
 
 
+def test_captions_wrap_on_a_small_frame():
+    """On a 320 px frame the legend and a run's line wrap onto more lines instead of running off
+    the right edge (QA pass: cut off); on a 1280 px frame each is one line."""
+    track = RunTrack("a-run-with-a-long-name", np.array([[10.0, 10.0, 20.0, 20.0]]), np.zeros(1, int),
+                     (frozenset({"tracker", "egomotion", "estimator"}),), None, None, True)
+    heights = {}
+    for width in (320, 1280):
+        img = np.full((240, width, 3), 90, np.uint8)
+        out = draw_frame(img, 0, np.array([[5.0, 5.0, 30.0, 30.0]]), [track], run_colours(1))
+        strip = out[240:]
+        heights[width] = strip.shape[0]
+        lit = np.flatnonzero((strip > 0).any(axis=(0, 2)))
+        assert lit.max() < width - 4, f"caption reaches the right edge at {width} px"
+    rows = {w: (h - int(40 * s) // 3) / int(40 * s) for (w, h), s in zip(heights.items(), (0.45, 0.8))}
+    assert rows[1280] >= 2 and rows[320] > rows[1280]     # legend + the run, more lines on 320 px
+    # every frame of a video has one size, whatever its caption says
+    n = 1000
+    track = RunTrack("r", np.full((n, 4), 10.0), np.arange(n), tuple(frozenset() for _ in range(n)), None, None, False)
+    gt = np.full((n, 4), 20.0)
+    gt[0] = np.nan
+    sizes = {draw_frame(np.zeros((240, 320, 3), np.uint8), k, gt, [track], run_colours(1)).shape for k in (0, 5, n - 1)}
+    assert len(sizes) == 1
+
+
 def test_contact_sheet_and_one_line_errors(runs, capsys):
     tmp, dirs = runs
     sheet = tmp / "sheet.png"

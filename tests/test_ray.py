@@ -23,7 +23,7 @@ from mata_eval.params import param  # noqa: E402
 from mata_eval.run.config import load_experiment  # noqa: E402
 from mata_eval.run.executors import RayExecutor  # noqa: E402
 from mata_eval.run.runner import run_experiment  # noqa: E402
-from mata_eval.types import Box, TrackerOutput  # noqa: E402
+from mata_eval.types import TrackerOutput  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,6 @@ run folder, a block call that never returns or raises SystemExit fails only its 
 from __future__ import annotations
 
 import json
-import os
-import textwrap
 import time
 from dataclasses import dataclass
 

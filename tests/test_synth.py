@@ -244,6 +244,20 @@ def test_cli_synth(tmp_path, capsys):
     assert (tmp_path / "out" / "data_seq" / "UAV123" / "syn001_cruise" / "000003.jpg").is_file()
     assert args.func(args) == 2  # refuses to overwrite without --force
     assert "already holds" in capsys.readouterr().out
+    # the written suite is a dataset root as it is: its generation options need not be repeated
+    # (QA pass: refused, "generated with other parameters" against the defaults)
+    from mata_eval.data.datasets.annotations import DatasetError
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
+    from mata_eval.params import build_params
+
+    params = build_params(SyntheticDataset.Params, {"root": str(tmp_path / "out")})
+    assert (params.n_sequences, params.n_frames, params.width, params.height) == (1, 3, 64, 48)
+    seq, = SyntheticDataset(params).sequences()
+    assert seq.name == "syn001_cruise" and seq.image(2).shape == (48, 64, 3)
+    with pytest.raises(DatasetError, match="n_frames=3 .asked 300."):   # a value asked for is still checked
+        SyntheticDataset(build_params(SyntheticDataset.Params, {"root": str(tmp_path / "out"), "n_frames": 300}))\
+            .sequences()
+    assert build_params(SyntheticDataset.Params, {}).n_sequences == 20   # no root: the defaults
 
 
 def test_camera_model_pure_translation_against_phase_correlation():

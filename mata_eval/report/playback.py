@@ -152,6 +152,39 @@ def _text(img: np.ndarray, text: str, org: tuple[int, int], colour=(255, 255, 25
     cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv2.LINE_AA)
 
 
+def _wrap(parts: Seq[str], width: int, scale: float) -> list[str]:
+    """``parts`` joined by three spaces into lines no wider than ``width`` px at ``scale``: a
+    part that does not fit on the line starts the next one, a part wider than a line is broken
+    between words."""
+    def fits(text: str) -> bool:
+        return cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 3)[0][0] <= width
+
+    lines: list[str] = []
+    for part in parts:
+        if lines and fits(f"{lines[-1]}   {part}"):
+            lines[-1] = f"{lines[-1]}   {part}"
+            continue
+        lines.append("")
+        for word in part.split(" "):
+            if lines[-1] and not fits(f"{lines[-1]} {word}"):
+                lines.append("")
+            lines[-1] = f"{lines[-1]} {word}" if lines[-1] else word
+    return lines
+
+
+def _caption_rows(k: int, n: int, absent: bool, states: Seq[tuple], width: int,
+                  scale: float) -> list[tuple[tuple[int, int, int] | None, str, bool]]:
+    """The caption strip's lines, (colour or None for the legend, text, whether it is the first
+    line of its caption): the legend, then a caption per run ``(colour, name, mata, frame of
+    what it holds, blocks published)``, each on as many lines as ``width`` needs."""
+    captions = [(None, [f"frame {k} of 0-{n - 1}", f"ground truth (green): {'target absent' if absent else 'box'}",
+                        "occluders: white", "dashed: search region", "thin: tracker box in MATA"])]
+    for colour, name, mata, held, pub in states:
+        what = "MATA estimate" if mata else "tracker box"
+        captions.append((colour, [f"{name}: {what} of frame {held} (held {k - held} frames)", f"published now: {pub}"]))
+    return [(c, text, i == 0) for c, parts in captions for i, text in enumerate(_wrap(parts, width, scale))]
+
+
 def draw_frame(image: np.ndarray, k: int, groundtruth: np.ndarray, tracks: Seq[RunTrack],
                colours: Seq[tuple[int, int, int]], occluders: Iterable[np.ndarray] = ()) -> np.ndarray:
     """Frame ``k`` with everything drawn on it and a caption strip below: one line for the
@@ -169,18 +202,24 @@ def draw_frame(image: np.ndarray, k: int, groundtruth: np.ndarray, tracks: Seq[R
         _rect(img, t.boxes[k], c, 2)
     scale = max(0.45, min(0.8, img.shape[1] / 1600))
     line = int(40 * scale)
-    strip = np.zeros((line * (len(tracks) + 1) + line // 3, img.shape[1], 3), np.uint8)
     absent = not np.all(np.isfinite(groundtruth[k]))
-    _text(strip, f"frame {k} of 0-{len(groundtruth) - 1}   ground truth (green): {'target absent' if absent else 'box'}"
-          "   occluders: white   dashed: search region   thin: tracker box in MATA", (8, line - 6), scale=scale)
-    for i, (t, c) in enumerate(zip(tracks, colours)):
-        y = line * (i + 2) - 6
-        cv2.rectangle(strip, (8, y - line + 12), (8 + line - 12, y), c, -1)
-        pub = " ".join(letter for b, letter in BLOCK_LETTERS if b in t.published[k]) or "-"
-        held = int(t.source_frame[k])
-        what = "MATA estimate" if t.mata else "tracker box"
-        _text(strip, f"{t.name}: {what} of frame {held} (held {k - held} frames)   published now: {pub}",
-              (line + 4, y), c, scale=scale)
+    states = [(c, t.name, t.mata, int(t.source_frame[k]),
+               " ".join(letter for b, letter in BLOCK_LETTERS if b in t.published[k]) or "-")
+              for t, c in zip(tracks, colours)]
+    rows = _caption_rows(k, len(groundtruth), absent, states, img.shape[1] - (line + 12), scale)
+    # the strip is as high as the longest caption of the sequence needs, so that every frame of
+    # a video has one size: the last frame, the target absent, every block publishing
+    longest = _caption_rows(len(groundtruth) - 1, len(groundtruth), True, [(c, n, m, 0, "A B C") for c, n, m, _, _ in states],
+                            img.shape[1] - (line + 12), scale)
+    strip = np.zeros((line * max(len(rows), len(longest)) + line // 3, img.shape[1], 3), np.uint8)
+    for i, (c, text, first) in enumerate(rows):
+        y = line * (i + 1) - 6
+        if c is None:
+            _text(strip, text, (8, y), scale=scale)
+            continue
+        if first:
+            cv2.rectangle(strip, (8, y - line + 12), (8 + line - 12, y), c, -1)
+        _text(strip, text, (line + 4, y), c, scale=scale)
     return np.vstack([img, strip])
 
 

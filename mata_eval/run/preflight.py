@@ -65,7 +65,8 @@ def check_dataset(block: PluginBlock) -> BaseException | None:
     if bad:
         shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         where = next((s.loader.looked_in for s in sequences if isinstance(s.loader, MissingFrames)), None)
-        hint = f" (looked in {' or '.join(where)})" if where else ""
+        first = next((s.frame_paths[0] for s in sequences if s.name == bad[0] and s.frame_paths), None)
+        hint = f" (looked in {' or '.join(where)})" if where else f" (looked for {first})" if first else ""
         return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}")
     no_start = [s.name for s in sequences if not s.init_box.is_valid]
     if no_start:

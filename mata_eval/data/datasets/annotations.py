@@ -299,6 +299,24 @@ def frame_paths(folder: Path, n: int, numbered: str, where: Path, hint: str = ""
     return FramePaths(lambda: [os.path.join(root, numbered.format(k)) for k in range(1, n + 1)], n)
 
 
+#: a dataset's root when only its annotations are given (``root`` left out, to score results
+#: without the frames): nothing is found under it, and a frame read names this path
+NO_ROOT = Path("<root not set>")
+
+
+def check_root(plugin: str, root: str | None, annotations: str | None) -> None:
+    """A dataset's ``root``, checked when the experiment is loaded: required unless the
+    ``annotations`` folder is given (then the frames, which live under root, are not found)."""
+    if root is None and annotations is None:
+        raise ValueError(f"{plugin}: root: required (the dataset folder), or annotations: <folder> "
+                         "to score results without the frames")
+
+
+def dataset_root(root: str | None) -> Path:
+    """``root`` as a path, or NO_ROOT when it is left out (:func:`check_root`)."""
+    return NO_ROOT if root is None else Path(root).expanduser()
+
+
 def check_fps(plugin: str, fps: float | None) -> None:
     """A dataset's ``fps`` parameter, checked when the experiment is loaded (a ValueError there
     names the file, line and key): a positive finite number, or None where the plugin reads it

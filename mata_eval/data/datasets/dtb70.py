@@ -10,14 +10,14 @@ Attributes (11 flags) are not part of the download but of the authors' MATLAB ki
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import (DatasetError, annotation_files, check_fps, frame_paths, read_attribute_flags,
-                          read_boxes, select)
+from .annotations import (DatasetError, annotation_files, check_fps, check_root, dataset_root, frame_paths,
+                          read_attribute_flags, read_boxes, select)
 
 #: Flag order of the kit's att files (ATTRIBUTE_ORDER): scale variation, aspect ratio variation,
 #: occlusion, deformation, fast camera motion, in-plane rotation, out-of-plane rotation,
@@ -33,7 +33,9 @@ class DTB70:
 
     @dataclass(frozen=True)
     class Params:
-        root: str = field(metadata={"doc": "dataset folder holding one folder per sequence"})
+        root: str | None = param(
+            None, "dataset folder holding one folder per sequence"
+                  " (may be left out with annotations, to score results without the frames)")
         sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
         annotations: str | None = param(
             None, "annotation-only folder with <seq>.txt and att/<seq>.txt (default: <root>/<seq>/groundtruth_rect.txt)")
@@ -42,11 +44,12 @@ class DTB70:
         fps: float = param(30.0, "camera frame rate (frames per second)")
 
         def __post_init__(self) -> None:
+            check_root("dtb70", self.root, self.annotations)
             check_fps("dtb70", self.fps)
 
     def __init__(self, params: Params):
         self.params = params
-        self.root = Path(params.root).expanduser()
+        self.root = dataset_root(params.root)
 
     def _gt_files(self) -> dict[str, Path]:
         if self.params.annotations:

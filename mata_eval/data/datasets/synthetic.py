@@ -27,6 +27,11 @@ def cache_root() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "mata-eval"
 
 
+#: the suite's generation parameters when neither the experiment nor a suite at ``root`` sets them
+GENERATION_DEFAULTS = {"n_sequences": 20, "n_frames": 300, "width": 1280, "height": 720, "seed": 0,
+                       "motion": "uav123"}
+
+
 class SyntheticDataset:
     """Synthetic UAV sequences with exact ego-motion (generated on first use, then cached)."""
 
@@ -37,16 +42,28 @@ class SyntheticDataset:
     class Params:
         root: str | None = param(None, "suite folder (default: $MATA_EVAL_CACHE or ~/.cache/mata-eval, "
                                        "synthetic/<hash of the generation parameters>)")
-        n_sequences: int = param(20, "number of sequences")
-        n_frames: int = param(300, "frames per sequence (30 fps)")
-        width: int = param(1280, "frame width in pixels")
-        height: int = param(720, "frame height in pixels")
-        seed: int = param(0, "generation seed: same seed, same pixels, names and attributes")
-        motion: Literal["uav123", "legacy"] = param(
-            "uav123", "camera model: uav123 (image-plane motion matched to UAV123) or legacy "
-                      "(generator version 3: the target nearly still in the image)")
+        n_sequences: int | None = param(None, "number of sequences (default 20; a suite at root: its own)")
+        n_frames: int | None = param(None, "frames per sequence, 30 fps (default 300; a suite at root: its own)")
+        width: int | None = param(None, "frame width in pixels (default 1280; a suite at root: its own)")
+        height: int | None = param(None, "frame height in pixels (default 720; a suite at root: its own)")
+        seed: int | None = param(None, "generation seed: same seed, same pixels, names and attributes "
+                                       "(default 0; a suite at root: its own)")
+        motion: Literal["uav123", "legacy"] | None = param(
+            None, "camera model: uav123 (image-plane motion matched to UAV123) or legacy (generator "
+                  "version 3: the target nearly still in the image); default uav123, a suite at root: its own")
         sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
         jobs: int = param(2, "worker processes used to generate the suite")
+
+        def __post_init__(self) -> None:
+            # a generation parameter left out is the suite's at root (one written by `mata-eval
+            # synth`, read without repeating its options), else the default; resolved here, so
+            # that the manifest and the config hash hold the values
+            from ..synth import read_suite_info
+
+            suite = ((read_suite_info(Path(self.root).expanduser()) or {}).get("suite") or {}) if self.root else {}
+            for key, default in GENERATION_DEFAULTS.items():
+                if getattr(self, key) is None:
+                    object.__setattr__(self, key, suite.get(key, default))
 
     def __init__(self, params: Params):
         self.params = params

@@ -13,15 +13,15 @@ Listing sequences reads annotations only; frames are read by ``Sequence.image(k)
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FramePaths, Sequence
 from ..occlusion import ATTRIBUTE as OCCLUSION_ATTRIBUTE, read_occlusion_metadata
-from .annotations import (DatasetError, FrameRange, frame_paths, read_attribute_flags, read_boxes,
-                          read_frame_ranges, select)
+from .annotations import (DatasetError, FrameRange, check_root, dataset_root, frame_paths, read_attribute_flags,
+                          read_boxes, read_frame_ranges, select)
 
 #: Flag order of ``anno/UAV123/att/*.txt`` (the dataset's ATTRIBUTE_ORDER.txt).
 ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")
@@ -51,7 +51,9 @@ class _UAV123Layout:
 
     @dataclass(frozen=True)
     class Params:
-        root: str = field(metadata={"doc": "dataset folder holding data_seq/ and anno/"})
+        root: str | None = param(
+            None, "dataset folder holding data_seq/ and anno/"
+                  " (may be left out with annotations, to score results without the frames)")
         sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
         frame_ranges: str | None = param(
             None, "configSeqs.m of the UAV123 benchmark kit, or got10k's uav123.json "
@@ -59,9 +61,12 @@ class _UAV123Layout:
         annotations: str | None = param(
             None, "folder with <seq>.txt and att/ (default: <root>/anno/<subset>)")
 
+        def __post_init__(self) -> None:
+            check_root("uav123 / uav123_10fps / uav20l", self.root, self.annotations)
+
     def __init__(self, params: Params):
         self.params = params
-        self.root = Path(params.root).expanduser()
+        self.root = dataset_root(params.root)
 
     # -- folders --
     @property

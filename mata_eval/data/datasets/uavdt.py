@@ -11,13 +11,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import DatasetError, check_fps, frame_paths, read_attribute_flags, read_boxes, select
+from .annotations import (DatasetError, check_fps, check_root, dataset_root, frame_paths, read_attribute_flags,
+                          read_boxes, select)
 
 #: Flag order of ``att/<seq>_att.txt``: background clutter, camera motion, object motion, small
 #: object, illumination variations, object blur, scale variations, long-term tracking, large occlusion.
@@ -35,7 +36,9 @@ class UAVDT:
 
     @dataclass(frozen=True)
     class Params:
-        root: str = field(metadata={"doc": "dataset folder holding UAV-benchmark-S/ and anno/"})
+        root: str | None = param(
+            None, "dataset folder holding UAV-benchmark-S/ and anno/"
+                  " (may be left out with annotations, to score results without the frames)")
         sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
         annotations: str | None = param(
             None, "folder with <seq>_gt.txt and att/<seq>_att.txt (default: <root>/anno)")
@@ -43,11 +46,12 @@ class UAVDT:
         fps: float = param(30.0, "camera frame rate (frames per second)")
 
         def __post_init__(self) -> None:
+            check_root("uavdt", self.root, self.annotations)
             check_fps("uavdt", self.fps)
 
     def __init__(self, params: Params):
         self.params = params
-        self.root = Path(params.root).expanduser()
+        self.root = dataset_root(params.root)
 
     def anno_dir(self) -> Path:
         if self.params.annotations:
