@@ -33,20 +33,32 @@ class _CallableRunPackage(_types.ModuleType):
     the same name whenever it is imported, so a plain function ``run`` here would be replaced
     by the package; the package is made callable instead (see :func:`mata_eval.api.run`)."""
 
-    def __call__(self, experiment: Any, **kwargs: Any) -> Any:
+    def __call__(self, experiment: Any, *, runs: Any = None, sequences: Any = None, jobs: Any = None,
+                 force: bool = False, output: Any = None, progress: bool = True) -> Any:
+        """Run an experiment file like ``mata-eval run`` and score it; returns one RunScores per
+        run that ran. ``experiment``: a YAML path or a shipped name (``"quickstart"``); ``runs``,
+        ``sequences``: only these names; ``jobs``: worker processes (default: the cores);
+        ``force``: redo finished sequences; ``output``: results folder instead of the file's;
+        ``progress``: progress bar and messages. See :func:`mata_eval.api.run`."""
         from .api import run
 
-        return run(experiment, **kwargs)
+        return run(experiment, runs=runs, sequences=sequences, jobs=jobs, force=force, output=output,
+                   progress=progress)
 
 
 _run_package.__class__ = _CallableRunPackage
 
 
-def evaluate(folder: Any, dataset: str, root: Any = None, **kwargs: Any) -> Any:
-    """Score a results folder against a dataset: see :func:`mata_eval.api.evaluate`."""
+def evaluate(folder: Any, dataset: str, root: Any = None, *, profile: str = "default", layout: str = "auto",
+             **dataset_params: Any) -> Any:
+    """Score a results folder (a mata-eval run folder, or pysot / got10k / pytracking layout)
+    against a dataset's annotations, writing nothing; returns its RunScores. ``dataset``: a
+    dataset plugin name, ``root``: its folder, other parameters of it as keywords
+    (``sequences=[...]``, ``annotations=...``); ``profile``: the metric profile. See
+    :func:`mata_eval.api.evaluate`."""
     from .api import evaluate as _evaluate
 
-    return _evaluate(folder, dataset, root, **kwargs)
+    return _evaluate(folder, dataset, root, profile=profile, layout=layout, **dataset_params)
 
 
 def __getattr__(name: str) -> Any:

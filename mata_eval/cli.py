@@ -18,6 +18,7 @@ from .core.errors import ConfigError, Interrupted, UserError
 TIMELINE_WINDOW = 60
 #: file extension of each table format written by ``mata-eval report --out``
 EXTENSIONS = {"terminal": "txt", "markdown": "md", "csv": "csv", "latex": "tex"}
+REPORT_FOLDER = "report"   # <output>/report: the plots `run` writes beside its run folders
 
 TIMELINE_DOC = """Timeline plot of a scheduler trace (paper section 3.1, fig. "protocol comparison").
 
@@ -44,7 +45,8 @@ def cmd_list(args: argparse.Namespace) -> int:
             print(f"  {e.name:<{width}}  [{e.package}]  {e.description}")
             if args.verbose:
                 for p in describe(e.cls.Params):
-                    print(f"      {p.name}: {p.type} = {p.default!r}  {p.doc}")
+                    value = "(required)" if p.required else f"= {p.default!r}"
+                    print(f"      {p.name}: {p.type} {value}  {p.doc}")
     if reg.failures:
         print("plugins that failed to load:")
         for f in reg.failures:
@@ -74,11 +76,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     exp = load_experiment(args.experiment)
     if args.output:
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
+    checked = _preflight(exp, args.runs, args.debug)
+    if checked is None:   # (before the header: it would announce runs that do not exist)
+        return 2
     count = f"{len(set(args.runs))} of {len(exp.runs)}" if args.runs else str(len(exp.runs))
     print(f"experiment {exp.name} ({exp.path}): {count} run(s) -> {exp.output}", flush=True)
-    checked = _preflight(exp, args.runs, args.debug)
-    if checked is None:
-        return 2
     names = [r.name for r in checked.runs]
     outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=names, sequences=args.sequences,
                               progress=not args.quiet, executor=_executor(args))
@@ -100,7 +102,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if occ is not None:
             print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} sequences: "
                   f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
-    plots = plot_curves(scores, exp.output / "report")
+    plots = plot_curves(scores, exp.output / REPORT_FOLDER)
     for p in plots:
         print(f"plot: {p}")
     if failed:
@@ -293,6 +295,10 @@ def _print_incomplete(runs: Sequence) -> None:
               + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
     for scores in runs:
         where = f" in {scores.path}" if len(runs) > 1 else ""
+        if scores.failures:
+            failed = sorted(scores.failures)
+            print(f"{len(failed)} sequence(s) failed{where}: {', '.join(failed[:10])}"
+                  + (" ..." if len(failed) > 10 else "") + "; <run>/<sequence>.failed.json says why")
         if scores.missing:
             print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
                   + (" ..." if len(scores.missing) > 10 else ""))
@@ -323,7 +329,7 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     from .score.evaluate import ScoresUnavailable, scores_for
 
     runs = []
-    for d in run_dirs:
+    for d in _without_report_folders(run_dirs):
         try:
             runs.append(scores_for(Path(d)))
         except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
@@ -352,6 +358,22 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     return 0
 
 
+def _without_report_folders(run_dirs: Sequence[str]) -> list[str]:
+    """``run_dirs`` less the plots folder ``run`` writes beside the runs (``<output>/report``, no
+    run there), which ``report <output>/*/`` picks up, said once."""
+    from .run.results import SCORES
+
+    def is_plots(d: str) -> bool:
+        p = Path(d)
+        return p.name == REPORT_FOLDER and p.is_dir() and not (p / "manifest.json").exists() \
+            and not (p / SCORES).exists()
+
+    skipped = [d for d in run_dirs if is_plots(d)]
+    if skipped:
+        print(f"skipped {', '.join(skipped)}: the plots `mata-eval run` writes beside the runs, not a run")
+    return [d for d in run_dirs if d not in skipped]
+
+
 def cmd_paper(args: argparse.Namespace) -> int:
     """``mata-eval report --paper KIND RUN...`` or ``--experiment EXP.yaml ...``: print the
     table(s) (Markdown, or LaTeX with ``--format latex``); with ``--out`` also write Markdown,
@@ -376,7 +398,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
         if args.run_dirs:
             if args.paper == "auto":
                 raise ValueError("--paper auto needs --experiment files; name the table for run folders")
-            plan.append((args.paper, list(args.run_dirs)))
+            plan.append((args.paper, _without_report_folders(args.run_dirs)))
         if not plan and generic:
             if args.out:   # the paper's HTML summary is for its tables: say so, not nothing
                 print(f"no summary.html: no experiment here is one of the paper's tables "

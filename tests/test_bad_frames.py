@@ -5,6 +5,7 @@ whose size changes inside a sequence fails the sequence naming the frame, or, wi
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import textwrap
 
@@ -87,6 +88,23 @@ def test_a_frame_of_another_size_fails_the_sequence(clip, tmp_path):
     assert "frame 4" in outcome.reason
     assert f"{img.shape[1] // 2}x{img.shape[0] // 2}" in outcome.reason
     assert f"{img.shape[1]}x{img.shape[0]}" in outcome.reason
+    assert str(f) in outcome.reason                    # the file, not only its index (QA pass)
+
+
+@pytest.mark.parametrize("frame, got", [
+    (None, "NoneType"), (np.zeros((8, 8), np.uint8), "uint8 array of shape (8, 8)"),
+    (np.zeros((8, 8, 4), np.uint8), "uint8 array of shape (8, 8, 4)"),
+    (np.zeros((8, 8, 3), np.float32), "float32 array of shape (8, 8, 3)")])
+def test_a_loader_that_gives_no_bgr_image_is_named(frame, got):
+    """A sequence's own loader (the Python API, a plugin) that gives None, grey, BGRA or float
+    frames: a FrameReadError naming the frame and what is expected, where the blocks failed with
+    a numpy broadcast error, an AttributeError, or silently ran on (QA pass)."""
+    from mata_eval.core.sequence import Sequence
+
+    seq = Sequence("mine", np.tile([1.0, 1.0, 4.0, 4.0], (3, 1)), 30.0, loader=lambda k: frame)
+    with pytest.raises(FrameReadError, match=re.escape(f"frame 2 of sequence 'mine': its loader gave a {got}; "
+                                                       "expected an (H, W, 3) uint8 BGR image")):
+        seq.image(2)
 
 
 def test_skip_excludes_the_bad_frame_from_scoring_and_counts_it(clip, tmp_path):

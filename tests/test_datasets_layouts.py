@@ -281,6 +281,12 @@ def test_folder_layout_frame_count_mismatch(tmp_path):
     write_gt(seq / "groundtruth_rect.txt", boxes(4))
     with pytest.raises(DatasetError, match="4 ground-truth lines but 3 frames"):
         make(FolderDataset, root=str(tmp_path / "data")).sequences()
+    # a frame missing in the middle is named (QA pass: only the counts were)
+    write_frames(seq / "img", 4)
+    missing = sorted((seq / "img").iterdir())[2]
+    missing.unlink()
+    with pytest.raises(DatasetError, match=rf"4 ground-truth lines but 3 frames in .* \(missing: {missing.name}\)"):
+        make(FolderDataset, root=str(tmp_path / "data")).sequences()
 
 
 # --- parsers ---------------------------------------------------------------------------------

@@ -59,6 +59,11 @@ def test_video_with_ground_truth_and_errors(video, tmp_path):
     gt.write_text("8,20,16,16\n")
     with pytest.raises(DatasetError, match=r"gt.txt: 1 ground-truth lines but 12 frames"):
         VideoDataset(VideoDataset.Params(path=str(video), groundtruth=str(gt))).sequences()
+    gt.write_text("8,20,16,16\n" * (N + 5))           # another sequence's file: refused, not cut
+    with pytest.raises(DatasetError, match=r"gt.txt: 17 ground-truth lines but 12 frames"):
+        VideoDataset(VideoDataset.Params(path=str(video), groundtruth=str(gt))).sequences()
+    (seq,) = VideoDataset(VideoDataset.Params(path=str(video), groundtruth=str(gt), frames=10)).sequences()
+    assert len(seq) == 10 and len(seq.groundtruth) == 10   # the first 10 of both, as asked
     with pytest.raises(ValueError, match=r"video: give init_box"):
         VideoDataset.Params(path=str(video))
     with pytest.raises(DatasetError, match=r"video: file not found: .*nope.mp4"):
@@ -83,6 +88,11 @@ def test_live_run_on_a_video_without_ground_truth_gives_outputs_and_timings_only
     (scores,) = evaluate_experiment(exp)
     assert scores.summary.overall.n_sequences == 0 and np.isnan(scores.summary.overall.sr)
     assert scores.frequencies["tracker"].starts > 1
+    # played back on its frames (QA pass: `play` asked the video plugin for `sequences`)
+    from mata_eval.report.playback import play
+
+    out, n = play([run], "flight", tmp_path / "flight.png", sheet=4)
+    assert n == 4 and cv2.imread(str(out)).shape[1] == 1800
 
 
 # --- ROS bags ------------------------------------------------------------------------------------

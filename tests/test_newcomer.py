@@ -5,6 +5,7 @@ that the run folders hold."""
 
 from __future__ import annotations
 
+import dataclasses
 import textwrap
 
 import cv2
@@ -168,6 +169,13 @@ def test_mata_minus_baseline_pairs_runs_and_subtracts(mata_and_baseline):
               for m in ("sr", "msr", "pr", "precision20", "nt2f")]
     assert [float(v) for v in row[3:]] == pytest.approx(expect, abs=0.051)
     assert mata_deltas([base]) is None and mata_deltas([mata]) is None
+    # a sequence only the baseline has (failed in the MATA run) stays out of the difference,
+    # which says so (QA pass: a 4-sequence mean minus a 5-sequence one, unsaid)
+    lost = dataclasses.replace(base.sequences["square"], sr=0.0, msr=0.0, pr=0.0, precision20=0.0, nt2f=0.0)
+    more = dataclasses.replace(base, sequences={**base.sequences, "lost": lost})
+    t = mata_deltas([more, mata])
+    assert [float(v) for v in t.rows[0][3:]] == pytest.approx(expect, abs=0.051)
+    assert t.notes == ["mata - baseline: over the 1 sequence(s) both have (not in both: lost)"]
 
 
 def test_table_legend_explains_every_column(mata_and_baseline):

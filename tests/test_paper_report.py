@@ -296,6 +296,11 @@ def test_per_sequence_comparison_cli(tmp_path, capsys):
     assert rows[3] == ["s2", "", "100.0", "80.0", "-20.0", "100.0", "80.0", "-20.0", "-", "16"]
     assert rows[4] == ["mean (2)", "", "60.0", "65.0", "+5.0", "60.0", "65.0", "+5.0", "", ""]
     assert cli.main(["report", "--per-sequence", str(a)]) == 2
+    # which run is A and which B, and what is left out, are said under the table (QA pass)
+    c = make_run(tmp_path, "c", config(mata=True), {"s1": 10}, attrs={"s1": ("POC",)})
+    assert cli.main(["report", "--per-sequence", str(a), str(c)]) == 0
+    text = capsys.readouterr().out
+    assert f"- A: a ({a}); B: c ({c})" in text and "- not in both runs, left out: s2 (no result in B)" in text
     # --format and --out are honoured (QA pass: they were ignored, Markdown always printed)
     capsys.readouterr()
     assert cli.main(["report", "--per-sequence", str(a), str(b), "--format", "csv"]) == 0
@@ -305,6 +310,15 @@ def test_per_sequence_comparison_cli(tmp_path, capsys):
     assert cli.main(["report", "--per-sequence", str(a), str(b), "--out", str(out), "--format", "all"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["per_sequence.csv", "per_sequence.md", "per_sequence.tex"]
     assert (out / "per_sequence.csv").read_text().splitlines()[2].startswith("s2,,100")
+    # `report <output>/*/` picks up the plots folder `run` writes beside the runs: skipped, said
+    plots = a.parent / "report"
+    plots.mkdir()
+    (plots / "success.png").write_bytes(b"")
+    capsys.readouterr()
+    assert cli.main(["report", str(a), str(plots), str(b)]) == 0
+    text = capsys.readouterr().out
+    assert f"skipped {plots}: the plots `mata-eval run` writes beside the runs, not a run" in text
+    assert [line.split()[0] for line in text.splitlines()[3:5]] == ["a", "b"]   # both runs, in order
 
 
 def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):

@@ -1,5 +1,6 @@
 """Declared plugin parameters: validation of YAML values against the Params dataclass."""
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -59,6 +60,14 @@ def test_describe_lists_type_default_doc():
     assert info["rate"].doc == "tracker rate in Hz"
     assert info["path"].type == "str or null"
     assert info["sizes"].default == [1, 2]
+    assert not info["rate"].required
+
+    @dataclass(frozen=True)
+    class Needs:
+        path: str = dataclasses.field(metadata={"doc": "a file"})
+
+    (need,) = describe(Needs)
+    assert need.required and need.default is None   # `list -v` says "(required)", not "= None"
 
 
 @dataclass(frozen=True)

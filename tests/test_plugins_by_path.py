@@ -55,6 +55,12 @@ TRACKER_MODULE = '''
             pass
 
 
+    class ComplexParam(Drift):
+        @dataclass(frozen=True)
+        class Params:
+            gain: complex = param(1j, "no YAML value is one")
+
+
     def not_a_class():
         pass
 '''
@@ -107,6 +113,9 @@ def test_a_class_by_path_is_validated_and_runs(workdir):
     ('"my_trackers.drift:NoParams"', "class NoParams has no Params dataclass"),
     ('"my_trackers.drift:NoTrack"', "class NoTrack has no track method (a tracker plugin needs initialize, track"),
     ('"my_trackers/drift.py:Drift"', "is not a class path; expected 'package.module:Class', a tracker class"),
+    # QA pass: loaded and listed, then every value refused ("expected complex, got 2")
+    ('"my_trackers.drift:ComplexParam"', "class ComplexParam has parameters of a type no experiment file value "
+                                         "can be: gain: complex"),
 ])
 def test_a_bad_class_path_says_where_and_what_was_expected(workdir, name, message):
     path = experiment(workdir, f"{{name: {name}}}")
@@ -115,3 +124,16 @@ def test_a_bad_class_path_says_where_and_what_was_expected(workdir, name, messag
     text = str(err.value)
     assert text.startswith(f"{path}:3: tracker.") and message in text, text
     assert "\n" not in text
+
+
+def test_an_unknown_plugin_lists_each_failed_entry_point_set_off():
+    """The notes on entry points that failed to load follow the names that exist, each set off
+    by '; note:' (QA pass: printed on one line, they ran together)."""
+    from mata_eval.core.registry import LoadFailure, Registry
+
+    reg = Registry({"tracker": {}}, (LoadFailure("a_plugin", "pkg-a", "ImportError: x"),
+                                     LoadFailure("b_plugin", "pkg-b", "SyntaxError: y")))
+    with pytest.raises(KeyError) as err:
+        reg.get("tracker", "mine")
+    assert err.value.args[0] == ("unknown tracker 'mine'; available: (none); note: a_plugin (pkg-a) failed to load: "
+                                 "ImportError: x; note: b_plugin (pkg-b) failed to load: SyntaxError: y")

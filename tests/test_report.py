@@ -72,6 +72,17 @@ def test_csv_keeps_full_precision(runs):
     assert float(occ["nt2f"]) == 1.0 and occ["sequences"] == "1"
 
 
+def test_latex_rules_are_the_papers():
+    """Double rules under the header and between blocks, as the paper's tables have them (QA
+    pass: a double one under the header and a single one between blocks)."""
+    from mata_eval.report.tables import Table, to_latex
+
+    t = Table("k", "", ["A"], [], ["x"], [["a", "1"], ["b", "2"], ["c", "3"]], [0, 2])
+    body = [line.strip() for line in to_latex(t).splitlines()]
+    assert body[3:11] == ["\\midrule", "\\midrule", "a & 1 \\\\", "b & 2 \\\\", "\\midrule", "\\midrule",
+                          "c & 3 \\\\", "\\bottomrule"]
+
+
 def test_latex_is_booktabs_and_escaped(runs):
     tex = overview.render_table(runs, "latex")
     lines = tex.strip().splitlines()
@@ -170,6 +181,11 @@ def test_report_of_an_interrupted_run_names_the_sequences_without_results(tmp_pa
     evaluate.evaluate_run(d, seqs)
     assert cli.main(["report", str(d)]) == 0
     assert "without results" not in capsys.readouterr().out
+    # a failed sequence is named too, not only counted (QA pass)
+    (d / "b.failed.json").write_text('{"sequence": "b", "reason": "boom", "traceback": ""}')
+    evaluate.evaluate_run(d, seqs + [Sequence("b", gt)])
+    assert cli.main(["report", str(d)]) == 0
+    assert "1 sequence(s) failed: b; <run>/<sequence>.failed.json says why" in capsys.readouterr().out
 
 
 

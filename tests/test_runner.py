@@ -14,6 +14,7 @@ import pytest
 from mata_eval.run.config import load_experiment
 from mata_eval.params import param
 from mata_eval.core.registry import PluginEntry, Registry, load_registry
+from mata_eval.run import results
 from mata_eval.run.runner import ResultsConflict, run_experiment
 from mata_eval.core.sequence import FrameReadError, Sequence
 from mata_eval.types import Box, TrackerOutput
@@ -140,8 +141,43 @@ def test_changed_config_does_not_mix_with_old_results(tmp_path):
     changed = _exp(tmp_path, "{name: shift, nan_after: 100}")
     with pytest.raises(ResultsConflict, match="different configuration"):
         run_experiment(changed, jobs=1, progress=False, log=lambda s: None)
+    # --force on one sequence of the new configuration: the other sequences' results are of the
+    # old one, so they go too (they were kept under the new manifest)
+    outcomes = run_experiment(changed, jobs=1, force=True, sequences=["good"], progress=False, log=lambda s: None)
+    assert [(o.sequence, o.status) for o in outcomes] == [("good", "done")]
+    assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["good.txt"]
     outcomes = run_experiment(changed, jobs=1, force=True, progress=False, log=lambda s: None)
     assert {o.status for o in outcomes} == {"done", "failed"}
+
+
+def test_an_interrupted_forced_rerun_loses_nothing(tmp_path, monkeypatch):
+    """--force redoes finished sequences in place: stopped after its first new result, the
+    others still hold their earlier results (QA pass: all were deleted before the run)."""
+    exp = _exp(tmp_path)
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    run = tmp_path / "out" / "exp"
+    before = sorted(p.name for p in run.glob("*.txt"))
+    assert before == ["good.txt", "nan.txt"]
+    write = results.write_sequence
+
+    def write_then_stop(*args, **kwargs):
+        write(*args, **kwargs)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(results, "write_sequence", write_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(exp, jobs=1, force=True, progress=False, log=lambda s: None)
+    assert sorted(p.name for p in run.glob("*.txt")) == before
+
+
+def test_a_failed_redo_replaces_the_earlier_result(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    results.write_sequence(run, "s", np.ones((2, 4)), "k\n", "t\n")
+    results.write_bad_frames(run, "s", {1: "unreadable"})
+    results.write_failure(run, "s", "boom", "")
+    assert sorted(p.name for p in run.iterdir()) == ["s.failed.json"]
+    assert not results.is_finished(run, "s")
 
 
 def test_worker_processes_write_where_the_driver_says(tmp_path, monkeypatch):

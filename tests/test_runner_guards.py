@@ -51,7 +51,7 @@ class Faulty:
     class Params:
         step: float = param(1.0, "px per call")
         fault: str = param("none", "none | hang | exit | interrupt | confidence_nan | confidence_big | "
-                                   "confidence_text | tuple_box | text_box")
+                                   "confidence_text | tuple_box | text_box | negative_box")
 
     def __init__(self, params):
         self.params = params
@@ -76,6 +76,8 @@ class Faulty:
             return TrackerOutput(tuple(self.box.as_array()), 0.5)
         if fault == "text_box":
             return TrackerOutput(Box("154.9", self.box.y, self.box.w, self.box.h), 0.5)
+        if fault == "negative_box":
+            return TrackerOutput(Box(10.0, 10.0, -5.0, 10.0), 0.5)
         return TrackerOutput(self.box, confidence)
 
 
@@ -145,7 +147,9 @@ def test_a_call_that_never_returns_fails_its_sequence_and_the_run_goes_on(tmp_pa
     # or frame; a string coordinate was called "non-finite"
     ("confidence_text", "returned confidence '0.5'; expected a number in [0, 1]"),
     ("tuple_box", "tracker failed at frame 2 (t = 0.0667 s): returned a box of type tuple"),
-    ("text_box", "returned a box that is not four finite numbers")])
+    ("text_box", "returned a box that is not four finite numbers"),
+    # QA pass: written to the box file and scored as IoU 0
+    ("negative_box", "returned a box of negative size: Box(x=10.0, y=10.0, w=-5.0, h=10.0)")])
 def test_a_misbehaving_tracker_fails_only_its_sequence(tmp_path, registry, fault, words):
     exp = load_experiment(_write(tmp_path, f"{{name: faulty, fault: {fault}}}"), registry)
     outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, **QUIET)}

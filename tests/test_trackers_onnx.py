@@ -269,10 +269,59 @@ def test_another_trackers_model_is_refused_by_the_preflight(models, tmp_path):
     with pytest.raises(BackendUnavailable, match=r"takes the inputs input1, input2, not template, search: it is not "
                                                   r"VitTrack's object_tracking_vittrack_2023sep.onnx"):
         VitTrack(VitTrack.Params(model=str(m["nano_head"]))).check()
-    with pytest.raises(BackendUnavailable, match=r"it is not NanoTrack's backbone"):
+    with pytest.raises(BackendUnavailable, match=r"it is not NanoTrack v2's backbone"):
         NanoTrack(NanoTrack.Params(backbone=str(m["nano_head"]), head=str(m["nano_backbone"]))).check()
+    # QA pass: NanoTrack v3 (same input names, 15x15 maps) passed, then failed every sequence
+    # at frame 1 ("cannot reshape array of size 450 into shape (2,16,16)")
+    v3 = models / "models/nanotrack/v3"
+    with pytest.raises(BackendUnavailable, match=r"nanotrack_head.onnx gives outputs of shape \(1, 2, 15, 15\), "
+                                                  r"\(1, 4, 15, 15\), not \(1, 2, 16, 16\), \(1, 4, 16, 16\): it is "
+                                                  r"not NanoTrack v2's head"):
+        NanoTrack(NanoTrack.Params(backbone=str(m["nano_backbone"]), head=str(v3 / "nanotrack_head.onnx"))).check()
+    with pytest.raises(BackendUnavailable, match=r"nanotrack_backbone.onnx gives outputs of shape \(1, 96, 16, 16\)"):
+        NanoTrack(NanoTrack.Params(backbone=str(v3 / "nanotrack_backbone.onnx"), head=str(m["nano_head"]))).check()
     (tmp_path / "junk.onnx").write_bytes(b"not a model")
     with pytest.raises(BackendUnavailable, match=r"junk.onnx: not an ONNX model"):
         VitTrack(VitTrack.Params(model=str(tmp_path / "junk.onnx"))).check()
     VitTrack(VitTrack.Params(model=str(m["vittrack"]))).check()       # the right files pass
     NanoTrack(NanoTrack.Params(backbone=str(m["nano_backbone"]), head=str(m["nano_head"]))).check()
+
+
+def test_a_run_records_its_model_file_and_refuses_results_of_another(models, tmp_path, monkeypatch):
+    """The model file found through $MATA_VITTRACK_ONNX is in no YAML value: the manifest records
+    its path and sha256, and a rerun with another file does not resume the old results (QA
+    pass: 'finished sequence(s) kept' with another model)."""
+    import hashlib
+    import json
+    import shutil
+
+    import onnx
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import ResultsConflict, run_experiment
+
+    seq = tmp_path / "data" / "s"
+    (seq / "img").mkdir(parents=True)
+    src = sorted((models / "sequences" / "aerial30" / "S0601" / "img").iterdir())[:3]
+    for k, p in enumerate(src):
+        shutil.copy(p, seq / "img" / f"{k:04d}.jpg")
+    gt = np.loadtxt(models / "sequences" / "aerial30" / "S0601" / "groundtruth_rect.txt", delimiter=",")[:3]
+    np.savetxt(seq / "groundtruth_rect.txt", gt, delimiter=",")
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: vittrack}\n")
+    a, b = tmp_path / "a.onnx", tmp_path / "b.onnx"
+    shutil.copy(models / "models/vittrack/object_tracking_vittrack_2023sep.onnx", a)
+    graph = onnx.load(str(a))
+    graph.doc_string = "another build of the same graph"
+    onnx.save(graph, str(b))
+    monkeypatch.setenv("MATA_VITTRACK_ONNX", str(a))
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["done"]
+    manifest = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())
+    assert manifest["model_files"] == {"model": {"path": str(a), "sha256": hashlib.sha256(a.read_bytes()).hexdigest()}}
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["skipped"]
+    monkeypatch.setenv("MATA_VITTRACK_ONNX", str(b))
+    with pytest.raises(ResultsConflict, match=r"another model file .*a.onnx.* than .*b.onnx"):
+        run_experiment(load_experiment(exp_file), **quiet)
+    assert [o.status for o in run_experiment(load_experiment(exp_file), force=True, **quiet)] == ["done"]

@@ -37,6 +37,7 @@ class ParamInfo:
     type: str
     default: Any
     doc: str
+    required: bool = False   # no default: the experiment file must give it
 
 
 def describe(params_cls: type) -> list[ParamInfo]:
@@ -50,7 +51,8 @@ def describe(params_cls: type) -> list[ParamInfo]:
             default = f.default_factory()  # type: ignore[misc]
         else:
             default = None
-        out.append(ParamInfo(f.name, _type_name(hints[f.name]), default, f.metadata.get("doc", "")))
+        out.append(ParamInfo(f.name, _type_name(hints[f.name]), default, f.metadata.get("doc", ""),
+                             required=f.default is _MISSING and f.default_factory is _MISSING))  # type: ignore[misc]
     return out
 
 
@@ -164,6 +166,23 @@ def _coerce(value: Any, tp: Any, kp: tuple, where: Callable) -> Any:
     if isinstance(tp, type) and isinstance(value, tp):
         return value
     fail()
+
+
+def unsupported_types(params_cls: type) -> list[str]:
+    """``name: type`` of each parameter of ``params_cls`` whose type no experiment file value can
+    be (what :func:`build_params` takes: bool, int, float, str, null, Literal, unions, lists and
+    tuples of those, dicts, Any); checked when a plugin is loaded, not by the first YAML value."""
+    def ok(tp: Any) -> bool:
+        origin, args = typing.get_origin(tp), typing.get_args(tp)
+        if tp in (Any, bool, int, float, str, type(None), list, tuple, dict) or origin is Literal:
+            return True
+        if origin in (typing.Union, types.UnionType, list, tuple, typing.Sequence):
+            return all(a is Ellipsis or ok(a) for a in args)
+        return origin in (dict, typing.Mapping)
+
+    hints = typing.get_type_hints(params_cls)
+    return [f"{f.name}: {_type_name(hints[f.name])}" for f in dataclasses.fields(params_cls)
+            if not ok(hints[f.name])]
 
 
 def _type_name(tp: Any) -> str:

@@ -21,6 +21,7 @@ import warnings
 import pluggy
 
 from .hooks import KINDS, PROJECT, PluginSpecs
+from .params import unsupported_types
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,8 +54,8 @@ class Registry:
             return self.plugins[kind][name]
         except KeyError:
             known = ", ".join(sorted(self.plugins.get(kind, {}))) or "(none)"
-            hint = "".join(f"\n  note: {f.entry_point} ({f.package}) failed to load: {f.error}"
-                           for f in self.failures)
+            hint = "".join(f"; note: {f.entry_point} ({f.package}) failed to load: {f.error}"
+                           for f in self.failures)    # one line, each note set off (errors print on one)
             raise KeyError(f"unknown {kind} {name!r}; available: {known}{hint}") from None
 
     def names(self, kind: str) -> list[str]:
@@ -107,6 +108,13 @@ def class_problem(kind: str, cls: object) -> str | None:
     if missing:
         return (f"has no {' or '.join(missing)} method (a {kind} plugin needs "
                 f"{', '.join(METHODS[kind])}: mata_eval.core.interfaces)")
+    try:
+        unsupported = unsupported_types(cls.Params)
+    except Exception as exc:  # an annotation that does not resolve (a name not imported)
+        return f"has Params annotations that do not resolve: {exc}"
+    if unsupported:
+        return (f"has parameters of a type no experiment file value can be: {', '.join(unsupported)} "
+                "(use bool, int, float, str, Literal, lists, tuples or dicts of these, or null)")
     return None
 
 

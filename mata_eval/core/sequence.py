@@ -98,15 +98,28 @@ class Sequence:
     def __len__(self) -> int:
         return int(self.groundtruth.shape[0])
 
+    def __repr__(self) -> str:   # not every path and ground-truth row (thousands of lines)
+        where = "loader" if self.loader is not None else f"{len(self.frame_paths)} frame paths"
+        return (f"Sequence({self.name!r}, {len(self)} frames at {self.fps:g} fps, "
+                f"attributes={sorted(self.attributes)}, {where})")
+
     @property
     def init_box(self) -> Box:
         """The box that initialises the tracker: ``init``, else the ground truth of frame 0."""
         return self.init if self.init is not None else Box.from_array(self.groundtruth[0])
 
     def image(self, k: int) -> np.ndarray:
-        """Frame ``k`` as a BGR uint8 array; raises :class:`FrameReadError` naming the file."""
+        """Frame ``k`` as a BGR uint8 array; raises :class:`FrameReadError` naming the file, or
+        the frame when a ``loader`` gives something else (None, grey, BGRA, float)."""
         if self.loader is not None:
-            return self.loader(k)
+            img = self.loader(k)
+            if not (isinstance(img, np.ndarray) and img.dtype == np.uint8 and img.ndim == 3
+                    and img.shape[2] == 3 and img.size):
+                got = (f"{img.dtype} array of shape {img.shape}" if isinstance(img, np.ndarray)
+                       else type(img).__name__)
+                raise FrameReadError(f"frame {k} of sequence {self.name!r}: its loader gave a {got}; "
+                                     "expected an (H, W, 3) uint8 BGR image")
+            return img
         if not self.frame_paths:
             raise FrameReadError(f"sequence {self.name!r} was loaded without frames (annotations only)")
         try:

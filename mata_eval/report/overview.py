@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Iterable, Sequence
 
 from ..score.evaluate import RunScores
-from ..score.metrics import DEFAULT_GROUPS
+from ..score.metrics import DEFAULT_GROUPS, summarize
 from .tables import FORMATS, Table, hz, pct, render
 
 TABLES = ("overall", "challenges")
@@ -141,14 +141,23 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     for r, cfg in configs:
         if cfg.get("egomotion") is None and cfg.get("estimator") is None:
             baselines.setdefault(key(cfg), r)
-    rows = []
+    rows, notes = [], []
     for r, cfg in configs:
         base = baselines.get(key(cfg)) if is_mata(cfg) else None
         if base is None:
             continue
+        mine, theirs = r.summary.overall, base.summary.overall
+        if set(r.sequences) != set(base.sequences):
+            # a sequence that failed (or is missing) in one run only: both means over the
+            # sequences the two runs have, so that the difference is MATA's, not the set's
+            common = sorted(set(r.sequences) & set(base.sequences))
+            mine = summarize([r.sequences[s] for s in common])
+            theirs = summarize([base.sequences[s] for s in common])
+            notes.append(f"{r.name} - {base.name}: over the {len(common)} sequence(s) both have "
+                         f"(not in both: {', '.join(sorted(set(r.sequences) ^ set(base.sequences)))})")
         cells = []
         for m, _ in METRIC_LABELS:
-            a, b = getattr(r.summary.overall, m), getattr(base.summary.overall, m)
+            a, b = getattr(mine, m), getattr(theirs, m)
             cells.append(f"{100.0 * (a - b):+.1f}" if math.isfinite(a) and math.isfinite(b) else "-")
         rows.append([plugin_label("tracker", cfg.get("tracker")), protocol_label(cfg.get("protocol"))[0],
                      f"{r.name} - {base.name}"] + cells)
@@ -156,7 +165,7 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
         return None
     return Table("mata_vs_baseline", "MATA minus its baseline, in points (same tracker, data and protocol; "
                  "> 0: MATA better)", ["Tracker", "Protocol", "Runs"], [],
-                 [lab for _, lab in METRIC_LABELS], rows, stub_align="l")
+                 [lab for _, lab in METRIC_LABELS], rows, notes=notes, stub_align="l")
 
 
 def _csv_table(runs: Sequence[RunScores], table: str) -> Table:

@@ -378,9 +378,18 @@ def sequence_comparison(base: RunScores, other: RunScores) -> Table:
     ma, mb = {m: mean(base, m) for m in ("sr", "nt2f")}, {m: mean(other, m) for m in ("sr", "nt2f")}
     rows.append([f"mean ({len(common)})", "", pct(ma["sr"]), pct(mb["sr"]), _signed(mb["sr"] - ma["sr"]),
                  pct(ma["nt2f"]), pct(mb["nt2f"]), _signed(mb["nt2f"] - ma["nt2f"]), "", ""])
+    notes = [f"A: {base.name} ({base.path}); B: {other.name} ({other.path})"]
+
+    def why(run: RunScores, label: str, s: str) -> str:
+        return f"failed in {label}" if s in run.failures else f"no result in {label}"
+
+    left = [f"{s} ({why(other, 'B', s)})" for s in base.sequences if s not in other.sequences] + \
+           [f"{s} ({why(base, 'A', s)})" for s in other.sequences if s not in base.sequences]
+    if left:
+        notes.append(f"not in both runs, left out: {', '.join(left)}")
     return Table("sequences", f"Per sequence: {base.name} (A) against {other.name} (B).",
-                      ["Sequence", "Attributes"], [("SR", 3), ("NT2F", 3), ("First failure", 2)],
-                      ["A", "B", "B-A", "A", "B", "B-A", "A", "B"], rows, [len(rows) - 1])
+                 ["Sequence", "Attributes"], [("SR", 3), ("NT2F", 3), ("First failure", 2)],
+                 ["A", "B", "B-A", "A", "B", "B-A", "A", "B"], rows, [len(rows) - 1], notes)
 
 
 def _signed(v: float) -> str:

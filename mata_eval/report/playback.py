@@ -11,6 +11,7 @@ written with OpenCV's ``VideoWriter`` (MPEG-4 Part 2 in ``.mp4``, Motion JPEG in
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence as Seq
@@ -113,8 +114,10 @@ def sequence_of_run(run_dir: Path, seq: str) -> Sequence:
     config = manifest["config"]
     block = dict(config["dataset"])
     entry = load_registry().get("dataset", block.pop("name"))
-    block["sequences"] = [seq]
-    sequences = entry.cls(build_params(entry.cls.Params, block, ("dataset",))).sequences()
+    if "sequences" in {f.name for f in dataclasses.fields(entry.cls.Params)}:
+        block["sequences"] = [seq]     # only that one is loaded (a video or a bag holds one)
+    sequences = [s for s in entry.cls(build_params(entry.cls.Params, block, ("dataset",))).sequences()
+                 if s.name == seq]
     if not sequences:
         raise ValueError(f"{run_dir}: the run's dataset has no sequence {seq!r}")
     sequence = sequences[0]

@@ -137,7 +137,8 @@ def to_csv(t: Table) -> str:
 
 def to_latex(t: Table, label: str | None = None) -> str:
     """A booktabs ``tabular`` like the paper's: ``\\multirow`` stub cells, ``\\multicolumn`` column
-    groups, a double ``\\midrule`` between blocks; inside a ``table*`` with caption and label
+    groups, a double ``\\midrule`` under the header and between blocks (a table without blocks:
+    one under the header); inside a ``table*`` with caption and label
     when the table has a caption."""
     def tex(v: str, stub: bool) -> str:
         return _TEX_MARK[v] if stub and v in _TEX_MARK else latex_escape(v)
@@ -164,10 +165,12 @@ def to_latex(t: Table, label: str | None = None) -> str:
     else:
         out.append(" & ".join(latex_escape(c) for c in t.stub + t.columns) + r" \\")
     out.append(r"\midrule")
+    if t.blocks:          # the paper's tables: a double rule under the header and between blocks
+        out.append(r"\midrule")
     spans = t.merged_stub()
     for i, row in enumerate(t.rows):
-        if i in t.blocks:
-            out.append(r"\midrule")
+        if i in t.blocks and i > 0:
+            out += [r"\midrule", r"\midrule"]
         cells = []
         for c, v in enumerate(row):
             if c < n_stub:

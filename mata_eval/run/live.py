@@ -37,8 +37,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .scheduler import (BLOCKS, EPS, BlockError, SequenceRun, TraceEvent, frames_and_fps, output_problem,
-                        start_box)
+from .scheduler import (BLOCKS, EPS, TRACKER_CALL_COLUMNS, BlockError, SequenceRun, TraceEvent, frames_and_fps,
+                        output_problem, start_box, tracker_call_row)
 from ..core.sequence import Sequence
 from ..core.types import Box, Stamped
 
@@ -363,4 +363,8 @@ def assemble(camera_t: list[float], calls: Mapping[str, list[Call]], fps: float,
         wall_ms[block] = ms
     trace.sort(key=lambda e: (e.frame, e.t))
     rates = {b: len(calls[b]) * fps / n for b in wall_ms}
-    return SequenceRun(fps, boxes, np.ones(n, bool), confidence, source, wall_ms, tuple(trace), rates)
+    tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)   # for `mata-eval play`, as EOP's
+    for c in calls.get("tracker", [])[1:]:
+        tracker_calls[c.frame] = tracker_call_row(c.value)
+    return SequenceRun(fps, boxes, np.ones(n, bool), confidence, source, wall_ms, tuple(trace), rates,
+                       tracker_calls=tracker_calls)

@@ -3,8 +3,9 @@ prediction file ``<seq>.txt`` is written last, so its presence marks a finished 
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import io
-
 import json
 import os
 import platform
@@ -113,6 +114,8 @@ def _are_numbers(parts: list[str], n: int) -> bool:
 
 
 SCORES = "scores.json"  # the run's scores (mata_eval.score.evaluate), stale once a sequence changes
+#: the files a sequence leaves in its run folder (predictions, sidecars, failure, skipped frames)
+SEQUENCE_FILES = (".txt", ".frames.csv", ".trace.csv", ".failed.json", ".bad_frames.json")
 
 
 def invalidate_scores(run_dir: Path) -> None:
@@ -131,7 +134,12 @@ def write_sequence(run_dir: Path, seq: str, boxes: np.ndarray, frames_csv: str, 
 
 
 def write_failure(run_dir: Path, seq: str, reason: str, tb: str) -> None:
+    """Record a failed sequence; a result of an earlier attempt (``--force`` redoes finished
+    sequences in place) goes, so that the failure is what the folder says."""
     invalidate_scores(run_dir)
+    for suffix in SEQUENCE_FILES:
+        if suffix != ".failed.json":
+            inside(run_dir, seq, suffix).unlink(missing_ok=True)
     write_json(inside(run_dir, seq, ".failed.json"), {"sequence": seq, "reason": reason, "traceback": tb})
 
 
@@ -174,10 +182,29 @@ def read_failures(run_dir: Path) -> dict[str, str]:
     return out
 
 
-def clear_sequence(run_dir: Path, seq: str) -> None:
+def clear_run(run_dir: Path) -> None:
+    """Remove every sequence's results and the scores of a run folder (its results are of
+    another configuration, which must not be mixed with the new one's)."""
     invalidate_scores(run_dir)
-    for suffix in (".txt", ".frames.csv", ".trace.csv", ".failed.json", ".bad_frames.json"):
-        inside(run_dir, seq, suffix).unlink(missing_ok=True)
+    for suffix in SEQUENCE_FILES:
+        for p in Path(run_dir).glob(f"*{suffix}"):
+            p.unlink(missing_ok=True)
+
+
+def file_sha256(path: str | Path) -> str:
+    """sha256 of a file's bytes, computed once per process for a file of a given size and
+    modification time (a run reads its model files in the driver and every worker)."""
+    st = os.stat(path)
+    return _sha256(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=32)
+def _sha256(path: str, size: int, mtime_ns: int) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
 
 
 def package_versions() -> dict[str, str]:

@@ -65,26 +65,54 @@ def run_dir(exp: Experiment, spec: RunSpec) -> Path:
     return results.inside(exp.output, spec.name)
 
 
+def model_files(spec: RunSpec) -> dict[str, dict[str, str]]:
+    """The weight files the run's tracker reads (its optional ``model_files(params)``), each
+    with its sha256: found through an environment variable or the shared data, a file is not in
+    the configuration, so the manifest records what was read. Empty when the tracker names none
+    or one is missing (the preflight says which)."""
+    files = getattr(spec.tracker.cls, "model_files", None)
+    try:
+        paths = files(spec.tracker.params) if files is not None else {}
+        return {key: {"path": str(p), "sha256": results.file_sha256(p)} for key, p in paths.items()}
+    except OSError:
+        return {}
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = ()) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
-    to mix results of another configuration."""
+    to mix results of another configuration, or of other model files."""
     out = run_dir(exp, spec)
+    models = model_files(spec)
     try:
         old = results.read_manifest(out)
     except results.CorruptFile:
         if not force:
             raise
         old = None
-    if old is not None and old.get("config_hash") != spec.config_hash and not force:
-        raise ResultsConflict(
-            f"{out} holds results of a different configuration (config hash {old.get('config_hash')} "
-            f"!= {spec.config_hash}); rerun with --force to replace them, or change `output` in {exp.path}")
+        results.clear_run(out)   # of a configuration no one can tell: replaced, as --force asks
+    if old is not None and old.get("config_hash") != spec.config_hash:
+        if not force:
+            raise ResultsConflict(
+                f"{out} holds results of a different configuration (config hash {old.get('config_hash')} "
+                f"!= {spec.config_hash}); rerun with --force to replace them, or change `output` in {exp.path}")
+        results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
+    elif old is not None:
+        before = old.get("model_files") or {}
+        changed = [k for k, f in models.items() if k in before and before[k].get("sha256") != f["sha256"]]
+        if changed and not force:
+            k = changed[0]
+            raise ResultsConflict(
+                f"{out} holds results made with another {k} file ({before[k].get('path')}) than "
+                f"{models[k]['path']} (sha256 differs); rerun with --force to replace them, or change `output`")
+        if changed:
+            results.clear_run(out)
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(exp.path),
         "run": spec.name,
         "config": spec.resolved,
         "config_hash": spec.config_hash,
+        "model_files": models,
         "seed": spec.seed,
         "sequence_seeds": "numpy.random.default_rng([seed, crc32(sequence name)])",
         "metric_profile": spec.metrics_profile,
@@ -105,6 +133,8 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
         else:
             if r.bad_frames:
                 results.write_bad_frames(out, r.sequence, dict(r.bad_frames))
+            else:   # one an earlier attempt skipped is not this result's
+                results.inside(out, r.sequence, ".bad_frames.json").unlink(missing_ok=True)
             results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
     except OSError as exc:  # e.g. disk full: this sequence is lost, the others go on
         return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")
@@ -146,7 +176,7 @@ def select_runs(exp: Experiment, only: list[str] | None) -> list[RunSpec]:
     if only and len(specs) != len(set(only)):
         known = ", ".join(r.name for r in exp.runs)
         raise UserError(f"unknown run name(s) {', '.join(sorted(set(only) - {r.name for r in specs}))} "
-                        f"in --runs; the runs of {exp.path} are: {known}")
+                        f"(--runs, or runs= in Python); the runs of {exp.path} are: {known}")
     return specs
 
 
@@ -178,8 +208,8 @@ def run_experiment(
     if sequences and specs:
         known_seqs = {s.name for spec in specs for s in load_sequences(spec)}
         if set(sequences) - known_seqs:
-            raise UserError(f"unknown sequence name(s) {', '.join(sorted(set(sequences) - known_seqs))} in "
-                            f"--sequences; the sequences are: {', '.join(sorted(known_seqs))}")
+            raise UserError(f"unknown sequence name(s) {', '.join(sorted(set(sequences) - known_seqs))} "
+                            f"(--sequences, or sequences= in Python); the sequences are: {', '.join(sorted(known_seqs))}")
     outcomes: list[SequenceOutcome] = []
     with contextlib.ExitStack() as locks, stop_on_signals():
         for spec in specs:
@@ -211,9 +241,9 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
         for i, seq in enumerate(load_sequences(spec)):
             if sequences and seq.name not in sequences:
                 continue
-            if force:
-                results.clear_sequence(out, seq.name)
-            if results.is_finished(out, seq.name):
+            # --force redoes a finished sequence in place: its old result stays until the new
+            # one (or the failure) is written, so a run interrupted half-way loses nothing
+            if not force and results.is_finished(out, seq.name):
                 outcomes.append(SequenceOutcome(spec.name, seq.name, "skipped"))
             else:
                 pending.append((spec, i, seq))

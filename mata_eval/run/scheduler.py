@@ -62,6 +62,13 @@ TRACKER_CALL_COLUMNS = ("tracker_x", "tracker_y", "tracker_w", "tracker_h",
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
 
 
+def tracker_call_row(output: TrackerOutput) -> tuple[float, ...]:
+    """The TRACKER_CALL_COLUMNS of one tracker call: its box, and its search region where the
+    tracker reports one (``extra`` keys ``search_x, search_y, search_w, search_h``; NaN if not)."""
+    b, ex = output.box, output.extra or {}
+    return (b.x, b.y, b.w, b.h) + tuple(float(ex.get(c, math.nan)) for c in TRACKER_CALL_COLUMNS[4:])
+
+
 # --- timing specs (what a protocol gives the scheduler) ----------------------------------------
 
 class Latency(Protocol):
@@ -396,7 +403,8 @@ def sequence_steps(
         if frame_size is None:
             frame_size = size
         elif size != frame_size:
-            raise FrameReadError(f"frame {k} of sequence {sequence.name!r} is {size[0]}x{size[1]} pixels, "
+            where = f" ({sequence.frame_paths[k]})" if sequence.loader is None and sequence.frame_paths else ""
+            raise FrameReadError(f"frame {k} of sequence {sequence.name!r}{where} is {size[0]}x{size[1]} pixels, "
                                  f"frame 0 is {frame_size[0]}x{frame_size[1]}")
         return img
 
@@ -502,9 +510,7 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
                     _check_output("tracker", value, k, tk)
-                    bx, ex = value.box, value.extra or {}
-                    tracker_calls[k] = (bx.x, bx.y, bx.w, bx.h) + tuple(
-                        float(ex.get(c, math.nan)) for c in ("search_x", "search_y", "search_w", "search_h"))
+                    tracker_calls[k] = tracker_call_row(value)
             else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
                     t0 = clock()
@@ -616,7 +622,7 @@ OUTPUT_TYPES = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Esti
 
 def output_problem(block: str, value: Any) -> str | None:
     """What is wrong with a block's output, or None: the type the block promises, for the
-    tracker and the estimator a :class:`Box` of four finite numbers, for the tracker a
+    tracker and the estimator a :class:`Box` of four finite numbers, of size >= 0, for the tracker a
     confidence that is a number in [0, 1]. The scheduler, the live runtime and ``mata-eval
     profile`` check every call with it."""
     want = OUTPUT_TYPES[block]
@@ -628,6 +634,8 @@ def output_problem(block: str, value: Any) -> str | None:
         return f"returned a box of type {type(value.box).__name__}; expected a mata_eval.types.Box"
     if not _finite(value.box):
         return f"returned a box that is not four finite numbers: {value.box}"
+    if value.box.w < 0 or value.box.h < 0:   # an empty box (0) is a tracker's "nothing here"
+        return f"returned a box of negative size: {value.box}; expected w, h >= 0"
     if block == "tracker":
         c = value.confidence
         if not (_is_number(c) and 0.0 <= float(c) <= 1.0):

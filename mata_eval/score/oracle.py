@@ -24,8 +24,8 @@ from .metrics import SequenceScores, score_sequence
 
 class PerfectTracker:
     """Returns the ground-truth box of the frame it is handed (the last valid one where the
-    ground truth is NaN). The "image" it is handed is a 1x1 array holding the frame index (see
-    :func:`oracle_run`)."""
+    ground truth is NaN). The "image" it is handed is a 1x1 BGR pixel holding the frame index
+    (:func:`_frame_index`)."""
 
     def __init__(self, groundtruth: np.ndarray):
         self.groundtruth = np.asarray(groundtruth, dtype=float)
@@ -35,21 +35,22 @@ class PerfectTracker:
         self.last = box
 
     def track(self, frame_index: np.ndarray, prior: object = None) -> TrackerOutput:
-        g = self.groundtruth[int(frame_index[0, 0])]
-        box = Box.from_array(g)
+        b, g, r = (int(v) for v in frame_index[0, 0])
+        box = Box.from_array(self.groundtruth[b + 256 * g + 65536 * r])
         if box.is_valid:
             self.last = box
         return TrackerOutput(self.last, 1.0)
 
 
 def _frame_index(k: int) -> np.ndarray:
-    return np.full((1, 1), k, dtype=np.int64)
+    """Frame ``k`` as the image of a 1x1 BGR frame: its index in base 256 (up to 16.7 M frames)."""
+    return np.array([[[k & 255, (k >> 8) & 255, (k >> 16) & 255]]], np.uint8)
 
 
 def oracle_run(sequence: Sequence, protocol: ProtocolPreset) -> SequenceRun:
     """The perfect tracker on ``sequence`` under ``protocol`` (no egomotion, no estimator: the
     tracker's output is held between its publishes). No image is read: the sequence's frames
-    are replaced by 1x1 arrays holding their indices."""
+    are replaced by 1x1 images holding their indices."""
     indexed = dataclasses.replace(sequence, loader=_frame_index)
     return run_sequence(indexed, PerfectTracker(sequence.groundtruth), None, None, protocol,
                         np.random.default_rng(0), feedback=False)

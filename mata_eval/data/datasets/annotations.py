@@ -292,11 +292,27 @@ def frame_paths(folder: Path, n: int, numbered: str, where: Path, hint: str = ""
     Paths are joined on first access (scoring never asks)."""
     names = image_names(folder)
     if names and len(names) != n:
-        raise DatasetError(f"{where}: {n} ground-truth lines but {len(names)} frames in {folder}{hint}")
+        raise DatasetError(f"{where}: {n} ground-truth lines but {len(names)} frames in {folder}"
+                           f"{numbering_gaps(names)}{hint}")
     root = str(folder)
     if names:
         return FramePaths(lambda: [os.path.join(root, x) for x in names], n)
     return FramePaths(lambda: [os.path.join(root, numbered.format(k)) for k in range(1, n + 1)], n)
+
+
+def numbering_gaps(names: list[str]) -> str:
+    """For numbered frame files (``00001.jpg``...): the numbers missing between the first and
+    the last, as a clause of the frame-count error; empty when the names are not numbers."""
+    stems = [os.path.splitext(x)[0] for x in names]
+    if not all(st.isdigit() for st in stems):
+        return ""
+    have = {int(st) for st in stems}
+    gaps = [k for k in range(min(have), max(have) + 1) if k not in have]
+    if not gaps:
+        return ""
+    width, ext = len(stems[0]), os.path.splitext(names[0])[1]
+    shown = ", ".join(f"{k:0{width}d}{ext}" for k in gaps[:5]) + (f" and {len(gaps) - 5} more" if len(gaps) > 5 else "")
+    return f" (missing: {shown})"
 
 
 #: a dataset's root when only its annotations are given (``root`` left out, to score results

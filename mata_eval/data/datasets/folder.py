@@ -16,7 +16,8 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import DatasetError, MissingFrames, check_fps, list_images, read_boxes, select
+from .annotations import (DatasetError, MissingFrames, check_fps, list_images, numbering_gaps, read_boxes,
+                          select)
 
 
 class FolderDataset:
@@ -72,7 +73,8 @@ class FolderDataset:
                     break
             if frames and len(frames) != len(gt):
                 raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines but {len(frames)} frames in "
-                                   f"{Path(frames[0]).parent}; expected one line per frame")
+                                   f"{Path(frames[0]).parent}{numbering_gaps([Path(f).name for f in frames])}; "
+                                   "expected one line per frame")
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, frame_paths=tuple(frames),
                                 loader=None if frames else MissingFrames(name, cands)))
         return out

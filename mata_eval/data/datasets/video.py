@@ -100,9 +100,11 @@ class VideoDataset:
             n = min(n, p.frames)
         if p.groundtruth is not None:
             gt = read_boxes(p.groundtruth)
-            if len(gt) < n:
+            # one line per frame; more lines only with `frames` (the first N of both): a longer
+            # file is another sequence's (QA pass: cut to the video and scored)
+            if len(gt) < n or (len(gt) > n and p.frames is None):
                 raise DatasetError(f"{p.groundtruth}: {len(gt)} ground-truth lines but {n} frames in {path}; "
-                                   "expected one line per frame")
+                                   "expected one line per frame (frames: N uses the first N of each)")
             gt = gt[:n]
         else:
             gt = np.full((n, 4), np.nan)
