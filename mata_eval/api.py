@@ -53,6 +53,9 @@ def run(experiment: str | Path, *, runs: Sequence[str] | None = None, sequences:
     from .run.runner import run_experiment
     from .score.evaluate import evaluate_experiment
 
+    if _imported_by_a_worker():
+        raise RuntimeError("mata_eval.run() called while a worker process imports your script: put the call "
+                           "under `if __name__ == \"__main__\":` (worker processes import the script)")
     exp = load_experiment(experiment)
     if output is not None:
         exp = dataclasses.replace(exp, output=Path(output).resolve())
@@ -66,6 +69,21 @@ def run(experiment: str | Path, *, runs: Sequence[str] | None = None, sequences:
     run_experiment(exp, jobs=jobs, force=force, only=names, sequences=list(sequences or []) or None,
                    progress=progress, log=log)
     return evaluate_experiment(exp, only=names)
+
+
+def _imported_by_a_worker() -> bool:
+    """Whether this call comes from the top level of a script that a spawned worker process is
+    importing (as ``__mp_main__``): a script without an ``if __name__ == "__main__":`` guard,
+    which would run the experiment again in every worker, find the run folder locked and die,
+    leaving the parent a broken process pool and no hint."""
+    import sys
+
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__mp_main__":
+            return True
+        frame = frame.f_back
+    return False
 
 
 def evaluate(folder: str | Path, dataset: str, root: str | Path | None = None, *, profile: str = "default",

@@ -900,7 +900,8 @@ def main(argv: list[str] | None = None) -> int:
     except (UserError, OSError) as exc:  # a mistake to fix, or a file that cannot be read or written
         if args.debug:
             raise
-        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        for one in getattr(exc, "errors", None) or (exc,):   # several problems of a file: a line each
+            print(f"error: {_one_line(one)}", file=sys.stderr)
         return 2
 
 

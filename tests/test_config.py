@@ -86,6 +86,33 @@ def error(tmp_path, text):
     return str(err.value)
 
 
+def test_every_problem_of_a_file_is_said_once_each(tmp_path):
+    """Each plugin block, the other keys and each run of the matrix are checked, so a file with
+    three mistakes takes one round, not three (QA pass); one found in every run is said once."""
+    p = write(tmp_path, """        dataset: {name: toy, root: 3}
+        tracker: {name: a, padding: fast}
+        protocol: {name: eop, tracker_hz: x}
+        seed: y
+        matrix:
+          m:
+            one: {}
+            two: {estimator: {name: ekf, tau: z}}
+        """)
+    with pytest.raises(ConfigError) as err:
+        load_experiment(p, REG)
+    assert str(err.value).splitlines() == [
+        f"{p}:1: dataset.root: expected str, got 3 (int)",
+        f"{p}:2: tracker.padding: expected float, got 'fast' (str)",
+        f"{p}:3: protocol.tracker_hz: expected float, got 'x' (str)",
+        f"{p}:4: seed: expected an integer seed, got 'y'",
+        f"{p}:8: estimator.tau: expected float, got 'z' (str)"]
+    assert err.value.location == f"{p}:1" and err.value.keypath == ("dataset", "root")   # reads as the first
+    one = write(tmp_path, "dataset: {name: toy}\ntracker: {name: a, padding: fast}\n")
+    with pytest.raises(ConfigError) as err:
+        load_experiment(one, REG)
+    assert str(err.value) == f"{one}:2: tracker.padding: expected float, got 'fast' (str)"
+
+
 def test_unknown_plugin_lists_available_names_and_line(tmp_path):
     msg = error(tmp_path, """\
         dataset: toy

@@ -196,6 +196,15 @@ def test_no_challenge_table_without_challenge_sequences(mata_and_baseline):
     assert "(0)" not in render_table(runs, "terminal", table="challenges")
 
 
+def test_run_from_a_script_imported_by_a_worker_says_what_guard_it_needs():
+    """A script that calls mata_eval.run at its top level, imported by a spawned worker (as
+    ``__mp_main__``), is told about the ``__main__`` guard, before it reruns the experiment and
+    dies on the run folder's lock (QA pass: a RunLocked and a broken process pool, no hint)."""
+    code = compile("import mata_eval as me\nme.run('quickstart', output='out')\n", "script.py", "exec")
+    with pytest.raises(RuntimeError, match=r'put the call under `if __name__ == "__main__":`'):
+        exec(code, {"__name__": "__mp_main__"})
+
+
 def test_import_is_light_and_run_is_callable():
     import subprocess
     import sys

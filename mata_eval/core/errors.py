@@ -23,6 +23,31 @@ class ConfigError(UserError, ValueError):
         super().__init__(f"{head}: {message}" if head else message)
 
 
+class ConfigErrors(ConfigError):
+    """Several independent problems of one experiment file (each plugin block is checked, and
+    each run of a matrix), one :class:`ConfigError` per line; reads as the first one
+    (``location``, ``keypath``, ``message``)."""
+
+    def __init__(self, errors: "list[ConfigError]"):
+        self.errors = tuple(errors)
+        first = self.errors[0]
+        super().__init__(first.location, first.keypath, first.message)
+        self.args = ("\n".join(str(e) for e in self.errors),)
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+def raise_all(errors: "list[ConfigError]") -> None:
+    """Raise the problems collected, if any: one as it is, several as :class:`ConfigErrors`
+    (the same problem found in several runs of a matrix once)."""
+    unique = list({str(e): e for e in errors}.values())
+    if len(unique) == 1:
+        raise unique[0]
+    if unique:
+        raise ConfigErrors(unique)
+
+
 class Interrupted(BaseException):
     """SIGINT or SIGTERM reached the driver of a run (a BaseException, like KeyboardInterrupt,
     so that no ``except Exception`` records it as a failure). ``exit_status``: 128 + signal."""

@@ -44,11 +44,11 @@ import importlib.metadata as md
 import itertools
 import json
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any, Callable, Iterator, Mapping
 
 import yaml
 
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, ConfigErrors, raise_all
 from ..core.params import build_params
 from ..core.registry import Registry, load_registry
 from .results import is_file_name
@@ -288,11 +288,20 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
     origin = {(k,): (k,) for k in base}
     optional = _optional_labels(doc, locate)
     runs = []
+    errors: list[ConfigError] = []     # every run of the matrix is checked
     for label_parts, config, cfg_origin in _expand(doc, base, origin, locate):
         run_name = "-".join(label_parts) if label_parts else str(doc.get("name") or path.stem)
-        spec = _resolve(run_name, config, cfg_origin, locate, registry)
+        try:
+            spec = _resolve(run_name, config, cfg_origin, locate, registry)
+        except ConfigErrors as exc:
+            errors += exc.errors
+            continue
+        except ConfigError as exc:
+            errors.append(exc)
+            continue
         runs.append(dataclasses.replace(spec, labels=tuple(label_parts),
                                         optional=bool(optional & set(label_parts))))
+    raise_all(errors)
     names = [r.name for r in runs]
     if len(set(names)) != len(names):
         raise ConfigError(locate(("matrix",)), ("matrix",), f"matrix labels give duplicate run names: {names}")
@@ -400,11 +409,27 @@ def _resolve(run_name: str, config: dict, origin: dict, locate: _Locator, regist
 
     blocks: dict[str, PluginBlock | None] = {}
     resolved: dict[str, Any] = {}
+    errors: list[ConfigError] = []     # every plugin block is checked: one line per problem
     for key in PLUGIN_KEYS:
-        block = _plugin_block(key, cfg[key], where, registry)
+        try:
+            block = _plugin_block(key, cfg[key], where, registry)
+        except ConfigError as exc:
+            errors.append(exc)
+            block = None
         blocks[key] = block
         resolved[key] = None if block is None else {"name": block.name, **dataclasses.asdict(block.params)}
+    try:
+        spec = _resolve_rest(run_name, cfg, where, blocks, resolved)
+    except ConfigError as exc:
+        errors.append(exc)
+    raise_all(errors)
+    return spec
 
+
+def _resolve_rest(run_name: str, cfg: dict, where: Callable[[KeyPath], str], blocks: dict[str, PluginBlock | None],
+                  resolved: dict[str, Any]) -> RunSpec:
+    """:func:`_resolve` after the plugin blocks: plugin versions, occlusion, seed and the other
+    run settings."""
     versions = {dist: v for block in blocks.values() if block is not None
                 for dist, v in plugin_distribution(block.cls).items()}
     if versions:  # only then: the hash of every run of the built-in plugins stays the same
