@@ -64,10 +64,15 @@ def test_dsp_and_vot_rt_parameters():
     timing = DSP(DSP.Params(n=4)).timing(30.0)
     assert timing.camera_hz == 7.5 and all(b.hz == 7.5 for b in timing.blocks.values())
     vot = reg.get("protocol", "vot_rt").cls
-    assert vot(build_params(vot.Params, {"time_scale": 2})).timing(30.0).blocks["tracker"].latency == WallTimeLatency(2.0)
+    graced = vot(build_params(vot.Params, {"time_scale": 2})).timing(30.0).blocks["tracker"].latency
+    assert (graced.inner, graced.interval, graced.left) == (WallTimeLatency(2.0), 1 / 30, 1)
+    assert vot(build_params(vot.Params, {"time_scale": 2, "grace": 0})).timing(30.0).blocks["tracker"].latency \
+        == WallTimeLatency(2.0)
     assert vot(build_params(vot.Params, {})).timing(30.0).blocks["estimator"].latency == FixedLatency(0.0)
-    timed = vot(build_params(vot.Params, {"timed_blocks": ["tracker", "egomotion"]})).timing(30.0)
+    timed = vot(build_params(vot.Params, {"timed_blocks": ["tracker", "egomotion"], "grace": 0})).timing(30.0)
     assert timed.blocks["egomotion"].latency == WallTimeLatency(1.0)
+    with pytest.raises(ValueError, match="vot_rt: grace: expected a number of calls >= 0"):
+        build_params(vot.Params, {"grace": -1})
     with pytest.raises(ValueError, match="time_scale"):
         build_params(vot.Params, {"time_scale": 0})
     with pytest.raises(ValueError, match="unknown block 'ego'"):

@@ -238,16 +238,36 @@ class FakeClock:
 def test_vot_realtime_uses_measured_wall_time():
     clock = FakeClock()
     tracker = FrameTracker(clock=clock, cost_s=0.07)  # 2.1 frames per call at 30 fps
-    run = run_sequence(make_sequence(12), tracker, None, None, VotRealTime(), np.random.default_rng(0),
-                       clock=clock)
+    run = run_sequence(make_sequence(12), tracker, None, None, VotRealTime(VotRealTime.Params(grace=0)),
+                       np.random.default_rng(0), clock=clock)
     assert events(run, "tracker", "start") == [0, 3, 6, 9]
     np.testing.assert_array_equal(run.boxes[:, 0], [-1] * 6 + [3] * 3 + [6] * 3)
     np.testing.assert_allclose(run.wall_ms["tracker"][[0, 3, 6, 9]], 70.0)
     # Twice as slow: 4.2 frames per call.
     clock2 = FakeClock()
     run2 = run_sequence(make_sequence(12), FrameTracker(clock=clock2, cost_s=0.07), None, None,
-                        VotRealTime(VotRealTime.Params(time_scale=2.0)), np.random.default_rng(0), clock=clock2)
+                        VotRealTime(VotRealTime.Params(time_scale=2.0, grace=0)), np.random.default_rng(0),
+                        clock=clock2)
     assert events(run2, "tracker", "start") == [0, 5, 10]
+
+
+def test_vot_realtime_grace_forgives_the_first_slow_call():
+    """The VOT toolkit's realtime grace (default 1): the first call slower than a frame interval
+    (here the initialisation, 70 ms at 30 fps) counts as taking one interval, so the tracker is
+    free at frame 1; later calls keep their 70 ms. Hand-computed: starts at 0, 1 (t = 1/30),
+    then 1/30 + 0.07 = 0.103 s -> frame 4, 0.203 s -> frame 7, 0.303 s -> frame 10; each output
+    is seen at the first frame after it: the call of frame 1 at frame 4, 4 at 7, 7 at 10."""
+    clock = FakeClock()
+    run = run_sequence(make_sequence(12), FrameTracker(clock=clock, cost_s=0.07), None, None, VotRealTime(),
+                       np.random.default_rng(0), clock=clock)
+    assert VotRealTime.Params().grace == 1
+    assert events(run, "tracker", "start") == [0, 1, 4, 7, 10]
+    np.testing.assert_array_equal(run.boxes[:, 0], [-1] * 4 + [1] * 3 + [4] * 3 + [7] * 2)
+    # a fresh grace per sequence (the protocol's timing is built for each)
+    clock2 = FakeClock()
+    again = run_sequence(make_sequence(12), FrameTracker(clock=clock2, cost_s=0.07), None, None, VotRealTime(),
+                         np.random.default_rng(0), clock=clock2)
+    assert events(again, "tracker", "start") == [0, 1, 4, 7, 10]
 
 
 def test_vot_realtime_on_a_fast_machine_equals_ltp():
@@ -342,7 +362,8 @@ def test_vot_realtime_with_the_real_clock():
             time.sleep(0.045)  # at least 1.35 frames at 30 fps, whatever the machine
             return super().track(image, prior)
 
-    run = run_sequence(make_sequence(12), Sleeper(), None, None, VotRealTime(), np.random.default_rng(0))
+    run = run_sequence(make_sequence(12), Sleeper(), None, None, VotRealTime(VotRealTime.Params(grace=0)),
+                       np.random.default_rng(0))
     starts = [e for e in run.trace if e.block == "tracker" and e.event == "start"]
     pubs = [e for e in run.trace if e.block == "tracker" and e.event == "publish"]
     assert starts[0].frame == 0 and len(starts) >= 3

@@ -49,9 +49,14 @@ def _finish(fig, ax, title: str, xlabel: str, ylabel: str, path: Path) -> Path:
     ax.set_ylabel(ylabel)
     ax.set_ylim(0, 1.0)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="lower left" if "Success" in title or "NT2F" in title else "lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
+    n = len(ax.get_legend_handles_labels()[0])
+    if n <= 8:
+        ax.legend(loc="lower left" if "Success" in title or "NT2F" in title else "lower right", fontsize=8)
+        fig.tight_layout()
+    else:   # many runs (a matrix): the legend beside the axes, the figure as tall as it needs
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize=7)
+        fig.set_size_inches(5.0, max(4.0, 0.16 * n + 0.6))
+    fig.savefig(path, bbox_inches="tight")
     return path
 
 

@@ -40,7 +40,7 @@ import threading
 import time
 from bisect import bisect_right
 from dataclasses import dataclass, field
-from typing import Any, Callable, Generator, Mapping, NamedTuple, Protocol
+from typing import Any, Callable, ClassVar, Generator, Mapping, NamedTuple, Protocol
 
 import numpy as np
 
@@ -102,6 +102,8 @@ class WallTimeLatency:
     """The call's own wall-clock time on this machine, times ``scale`` (VOT real-time)."""
 
     scale: float = 1.0
+    #: a latency measured on this machine: its run gets a task of its own (mata_eval.run.tasks)
+    measured: ClassVar[bool] = True
 
     def draw(self, rng: np.random.Generator, wall_s: float) -> float:
         return self.scale * wall_s

@@ -25,7 +25,7 @@ import numpy as np
 from ..core.sequence import Sequence
 from ..core.types import FrameImage
 from .config import Experiment, PluginBlock, RunSpec
-from .scheduler import RateWarning, SequenceRun, WallTimeLatency, sequence_steps
+from .scheduler import RateWarning, SequenceRun, sequence_steps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +77,7 @@ def runs_alone(spec: RunSpec, fps: float) -> bool:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RateWarning)  # the driver reported them once
         timing = protocol.timing(fps)
-    return any(isinstance(b.latency, WallTimeLatency) for b in timing.blocks.values())
+    return any(getattr(b.latency, "measured", False) for b in timing.blocks.values())   # WallTimeLatency and kin
 
 
 def make_tasks(pending: list[tuple[RunSpec, int, Sequence]]) -> list[Task]:

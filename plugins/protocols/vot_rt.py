@@ -31,10 +31,15 @@ class VotRealTime:
     class Params:
         time_scale: float = param(1.0, "factor on measured wall times (e.g. 3 emulates a 3x slower machine)")
         timed_blocks: list[str] = param(["tracker"], "blocks whose latency is their measured wall time (others: none)")
+        grace: int = param(1, "a timed block's first calls slower than a frame interval that count as taking one "
+                              "(the VOT toolkit's realtime grace, default 1: model loading and first-run "
+                              "allocations, which a device does before its first frame); 0: none")
 
         def __post_init__(self) -> None:
             if not self.time_scale > 0:
                 raise ValueError(f"vot_rt: time_scale: expected a positive number, got {self.time_scale!r}")
+            if isinstance(self.grace, bool) or self.grace < 0:
+                raise ValueError(f"vot_rt: grace: expected a number of calls >= 0, got {self.grace!r}")
             for b in self.timed_blocks:
                 if b not in BLOCKS:
                     raise ValueError(f"vot_rt: timed_blocks: unknown block {b!r}; blocks: {', '.join(BLOCKS)}")
@@ -43,9 +48,35 @@ class VotRealTime:
         self.params = params or self.Params()
 
     def timing(self, fps: float) -> Timing:
-        lat = WallTimeLatency(self.params.time_scale)
-        timed = set(self.params.timed_blocks)
-        return Timing(fps, {b: BlockTiming(fps, lat if b in timed else FixedLatency(0.0)) for b in BLOCKS})
+        """Per sequence (a fresh grace for each): the timed blocks' latency is their wall time."""
+        p = self.params
+        timed = set(p.timed_blocks)
+
+        def latency(b: str):
+            if b not in timed:
+                return FixedLatency(0.0)
+            lat = WallTimeLatency(p.time_scale)
+            return GraceLatency(lat, 1.0 / fps, p.grace) if p.grace else lat
+
+        return Timing(fps, {b: BlockTiming(fps, latency(b)) for b in BLOCKS})
+
+
+class GraceLatency:
+    """The VOT toolkit's realtime grace (``RealtimeTrackerRuntime``): the first ``grace`` calls
+    whose latency exceeds one frame ``interval`` count as taking exactly one interval (their
+    overflow forgotten); later calls keep their own. Stateful: one per block and sequence."""
+
+    measured = True   # measured on this machine, as WallTimeLatency: its run runs alone
+
+    def __init__(self, inner: WallTimeLatency, interval: float, grace: int):
+        self.inner, self.interval, self.left = inner, interval, grace
+
+    def draw(self, rng, wall_s: float) -> float:
+        latency = self.inner.draw(rng, wall_s)
+        if latency > self.interval and self.left > 0:
+            self.left -= 1
+            return self.interval
+        return latency
 
 
 @hookimpl
