@@ -90,8 +90,9 @@ CASES = [dict(), dict(delay="compensate"), dict(delay="ignore"), dict(h_update="
          dict(model="ca"), dict(model="cj"), dict(gating=False), dict(camera=False),
          dict(box_motion="corners"), dict(box_motion="centre"),
          dict(feedback_carry=True, feedback_shift=0.25), dict(feedback_hold=True), dict(q_adapt=True), dict(q_adapt=False),
-         dict(q_adapt=True, chi2_gate=0.0), dict(follow_consistent=False), dict(follow_consistent=True),
-         dict(follow_consistent=True, gate="absolute", tau_diff=0.5)]
+         dict(q_adapt=True, chi2_gate=0.0, follow_consistent=False), dict(follow_consistent=False),
+         dict(follow_consistent=True, chi2_gate=18.47),     # (follow_consistent reads chi2_gate: > 0)
+         dict(follow_consistent=True, chi2_gate=18.47, gate="absolute", tau_diff=0.5)]
 
 
 def skip_while_the_kernel_lags() -> None:

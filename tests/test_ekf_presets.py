@@ -3,6 +3,8 @@ old code on a fixed scenario, stored in tests/data by tests/ekf_reference_scenar
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -27,3 +29,17 @@ def test_the_default_preset_is_not_the_paper_and_yaml_overrides_a_preset_value()
     boxes, _ = run(HomographyEKF(P()))
     assert not np.array_equal(boxes, np.load(REFERENCE)["ignore_boxes"])
     assert set(PRESETS["paper"]) == set(PRESETS["mata"])
+
+
+@pytest.mark.parametrize("values, message", [
+    ({"tau_ewma": -1.0}, "`tau_ewma` must be in [0, 1]"), ({"tau_diff": 2.0}, "`tau_diff` must be in [0, 1]"),
+    ({"chi2_gate": 0.0}, "`follow_consistent` tests a box's innovation against `chi2_gate`, which is 0")])
+def test_settings_that_would_quietly_switch_a_test_off_are_refused(values, message):
+    """QA pass: a negative tau_ewma / tau_diff disabled the gate without a word, and chi2_gate 0
+    left preset mata's follow_consistent inert."""
+    from mata_eval.params import build_params
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        build_params(HomographyEKF.Params, values)
+    build_params(HomographyEKF.Params, {"chi2_gate": 0.0, "follow_consistent": False})   # what to set instead
+    build_params(HomographyEKF.Params, {"preset": "paper", "chi2_gate": 0.0})            # paper: not followed

@@ -140,6 +140,28 @@ def test_challenges_table_per_group(tmp_path):
     assert b[dis] == "-" and b[dis + 1] == "-"  # an empty group has no value
 
 
+def test_ablation_says_what_each_row_changes_and_which_protocol_it_ran(tmp_path):
+    """QA pass: runs at LTP and EOP landed in one table without saying which row is which, and
+    configurations that differ in a preset value or a block B parameter read the same."""
+    mata = {"name": "homography_ekf", "preset": "mata"}
+    eop = {"name": "eop", "tracker_hz": 10}
+    confs = {"2-mata": config(mata=True, estimator=dict(mata)),
+             "9-ignore": config(mata=True, estimator={**mata, "delay": "ignore"}),
+             "10-qv": config(mata=True, estimator={**mata, "q_v": 1000.0}),
+             "12-usac": config(mata=True, estimator=dict(mata),
+                               egomotion={"name": "grid_lk", "ransac_method": "usac_fast"})}
+    dirs = [make_run(tmp_path, f"{n}-{p}", {**c, "protocol": proto}, {"s": 5})
+            for n, c in confs.items() for p, proto in (("ltp", {"name": "ltp"}), ("eop", eop))]
+    rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
+    assert rows[0][:2] == ["Protocol", "Configuration"] and len(rows) == 2 + 8
+    assert [r[0] for r in rows[2:] if r[0]] == ["LTP", "EOP @ 10 Hz"]      # one block each, LTP first
+    ltp, eop_rows = {r[1]: r[5] for r in rows[2:6]}, {r[1]: r[5] for r in rows[6:10]}
+    assert ltp == eop_rows == {"2": "improved block C (preset mata)",
+                               "9": "improved block C (preset mata), measurements as current (delay: ignore)",
+                               "10": "improved block C (preset mata), q_v = 1000.0",
+                               "12": "improved block C (preset mata); grid_lk: ransac_method = usac_fast"}
+
+
 def test_ablation_rows_marks_and_details(tmp_path):
     proto = {"name": "eop", "tracker_hz": 10}
     confs = {

@@ -321,3 +321,30 @@ def test_a_parallel_run_after_this_process_used_opencv_threads_does_not_hang(tmp
     out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split("\n")[-2] == "['done', 'done'] 2"   # and the process's setting is back
+
+
+def test_a_retuned_preset_does_not_resume_results_of_the_old_values(tmp_path, monkeypatch):
+    """Parameters an experiment leaves to homography_ekf's preset are null in its configuration
+    (and hash): the manifest records the values the preset gave, and a rerun after the preset
+    changed (an upgrade retuning preset mata) does not keep the old results (QA pass)."""
+    from mata_eval_plugins.estimators import homography_ekf
+
+    reg = load_registry()
+    p = tmp_path / "exp.yaml"
+    p.write_text(textwrap.dedent(f"""\
+        output: {tmp_path / 'out'}
+        dataset: {{name: toy}}
+        tracker: {{name: shift}}
+        estimator: {{name: homography_ekf, q_box: 0.5}}
+        """))
+    registry = Registry({**_registry().plugins, "estimator": reg.plugins["estimator"]}, ())
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    run_experiment(load_experiment(p, registry), **quiet)
+    manifest = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())
+    recorded = manifest["preset_values"]["estimator"]
+    assert recorded["q_v"] == homography_ekf.PRESETS["mata"]["q_v"] and "q_box" not in recorded   # set in YAML
+    assert {o.status for o in run_experiment(load_experiment(p, registry), **quiet)} == {"skipped", "failed"}
+    monkeypatch.setitem(homography_ekf.PRESETS["mata"], "q_v", 12345.0)
+    with pytest.raises(ResultsConflict, match=r"other preset values of the estimator \(q_v: 100.0 then, 12345.0 now\)"):
+        run_experiment(load_experiment(p, registry), **quiet)
+    assert {o.status for o in run_experiment(load_experiment(p, registry), force=True, **quiet)} == {"done", "failed"}

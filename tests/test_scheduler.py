@@ -373,6 +373,7 @@ def test_vot_realtime_with_the_real_clock():
     assert np.all(run.wall_ms["tracker"][[s.frame for s in starts[1:]]] >= 45.0)
 
 
+@pytest.mark.filterwarnings("ignore:eop. tracker_hz 7 is not 30 fps")   # an irregular rate on purpose
 @pytest.mark.parametrize("proto", [LTP(), EOP(EOP.Params(tracker_hz=10.0)), EOP(EOP.Params(tracker_hz=7.0)),
                                    EOP(EOP.Params(tracker_latency=0.05, jitter_s=0.03))])
 def test_trace_alternates_start_and_publish_per_block(proto):

@@ -244,7 +244,19 @@ def ablation_marks(config: Mapping[str, Any]) -> tuple[bool, bool, bool | None, 
     if not hasattr(ecls, "ablation"):
         return egomotion, False, score, f"estimator {est.get('name')}"
     ego, ekf, details = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+    if ego and (changed := _non_defaults("egomotion", config.get("egomotion"))):
+        details += f"; {config['egomotion']['name']}: {changed}"   # a block B setting is a configuration too
     return ego, ekf, score, details
+
+
+def _non_defaults(kind: str, block: Mapping[str, Any] | None) -> str:
+    """``key = value`` of each parameter of a resolved plugin block that is not its default."""
+    cls = _plugin_class(kind, block)
+    if cls is None or not hasattr(cls, "Params"):
+        return ""
+    defaults = cls.Params()
+    return ", ".join(f"{k} = {v}" for k, v in block.items()
+                     if k != "name" and hasattr(defaults, k) and v != getattr(defaults, k))
 
 
 _CONFIG_NUMBER = re.compile(r"^(\d+)[-_ ]")
@@ -253,31 +265,36 @@ _CONFIG_NUMBER = re.compile(r"^(\d+)[-_ ]")
 def ablation_table(runs: Sequence[PlacedRun]) -> Table:
     """Paper Table 3: one row per configuration (numbered by the run label's leading number, else
     in the order given), its block marks, description, PR, SR, MSR, NT2F. A VOT column is added
-    when the runs use more than one tracker (rows then grouped by tracker)."""
+    when the runs use more than one tracker, a Protocol column when they use more than one
+    protocol (rows then grouped by tracker, then protocol)."""
     def number(i_r):
         i, r = i_r
         m = _CONFIG_NUMBER.match(r.name)
         return (int(m.group(1)) if m else 10_000 + i)
 
     trackers = _tracker_order(runs)
-    vary = len(trackers) > 1
-    ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker), number(i_r)))
-    rows, blocks = [], []
+    protocols = sorted({r.protocol: r.protocol_order for r in runs}.items(), key=lambda kv: kv[1])
+    protocols = [label for label, _ in protocols]
+    vary_t, vary_p = len(trackers) > 1, len(protocols) > 1
+    ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker),
+                                                      protocols.index(i_r[1].protocol), number(i_r)))
+    rows, blocks, group = [], [], None
     count = 0
     for i, r in ordered:
-        if vary and (not rows or rows[-1][0] != r.tracker):
+        if (vary_t or vary_p) and group != (r.tracker, r.protocol):
             blocks.append(len(rows))
-            count = 0
+            group, count = (r.tracker, r.protocol), 0
         count += 1
         ego, ekf, score, details = ablation_marks(r.config)
         m = _CONFIG_NUMBER.match(r.name)
         s = r.scores.summary.overall
-        rows.append(([r.tracker] if vary else [])
+        rows.append(([r.tracker] if vary_t else []) + ([r.protocol] if vary_p else [])
                     + [m.group(1) if m else str(count), mark(ego), mark(ekf), mark(score), details,
                        pct(s.pr), pct(s.sr), pct(s.msr), pct(s.nt2f)])
-    if not vary:
+    if not (vary_t or vary_p):
         blocks = [0, 2, 3] if len(rows) >= 4 else [0]
-    stub = (["VOT"] if vary else []) + ["Configuration", "Ego motion", "EKF", "Score", "Details"]
+    stub = (["VOT"] if vary_t else []) + (["Protocol"] if vary_p else []) + \
+        ["Configuration", "Ego motion", "EKF", "Score", "Details"]
     return Table("ablation", CAPTIONS["ablation"], stub, [], ["PR", "SR", "MSR", "NT2F"], rows, blocks)
 
 

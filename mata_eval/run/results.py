@@ -213,7 +213,7 @@ def package_versions() -> dict[str, str]:
 
     out = {"python": platform.python_version()}
     for dist in ("mata-eval", "numpy", "opencv-python-headless", "opencv-python", "onnxruntime",
-                 "torch", "pluggy", "PyYAML"):
+                 "torch", "numba", "pluggy", "PyYAML"):
         try:
             out[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:

@@ -12,9 +12,10 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import os
 import warnings
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import filelock
 from tqdm import tqdm
@@ -78,11 +79,45 @@ def model_files(spec: RunSpec) -> dict[str, dict[str, str]]:
         return {}
 
 
+def preset_values(spec: RunSpec) -> dict[str, dict[str, Any]]:
+    """Per plugin block, the values its preset gives the parameters the experiment leaves unset
+    (a ``Params.resolved()``, e.g. homography_ekf's ``preset: mata``): null in the configuration,
+    so not in its hash, but what the run used; a preset retuned by an upgrade changes them."""
+    out = {}
+    for key in ("dataset", "tracker", "egomotion", "estimator", "protocol"):
+        block = getattr(spec, key)
+        if block is None or not callable(getattr(block.params, "resolved", None)):
+            continue
+        given, full = dataclasses.asdict(block.params), dataclasses.asdict(block.params.resolved())
+        out[key] = {k: v for k, v in full.items() if given.get(k) is None and v is not None}
+    return out
+
+
+def _read_beyond_the_configuration(old: dict, now: dict) -> str | None:
+    """What differs between an earlier manifest's record of the run's inputs that its
+    configuration does not hold (model files, preset values) and this run's, or None; an
+    earlier manifest without the record (older mata-eval) is not compared."""
+    before = old.get("model_files") or {}
+    for k, f in now["model_files"].items():
+        if k in before and before[k].get("sha256") != f["sha256"]:
+            return f"made with another {k} file ({before[k].get('path')}) than {f['path']} (sha256 differs)"
+    if "preset_values" in old:
+        for block, values in now["preset_values"].items():
+            was = old["preset_values"].get(block, {})
+            changed = sorted(k for k in set(values) | set(was)     # as JSON: tuples are lists there
+                             if json.dumps(values.get(k)) != json.dumps(was.get(k)))
+            if changed:
+                k = changed[0]
+                return (f"made with other preset values of the {block} ({k}: {was.get(k)!r} then, {values.get(k)!r} "
+                        f"now{'' if len(changed) == 1 else f'; and {len(changed) - 1} more'})")
+    return None
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = ()) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
-    to mix results of another configuration, or of other model files."""
+    to mix results of another configuration, or of other model files or preset values."""
     out = run_dir(exp, spec)
-    models = model_files(spec)
+    inputs = json.loads(json.dumps({"model_files": model_files(spec), "preset_values": preset_values(spec)}))
     try:
         old = results.read_manifest(out)
     except results.CorruptFile:
@@ -96,29 +131,26 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
                 f"{out} holds results of a different configuration (config hash {old.get('config_hash')} "
                 f"!= {spec.config_hash}); rerun with --force to replace them, or change `output` in {exp.path}")
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
-    elif old is not None:
-        before = old.get("model_files") or {}
-        changed = [k for k, f in models.items() if k in before and before[k].get("sha256") != f["sha256"]]
-        if changed and not force:
-            k = changed[0]
-            raise ResultsConflict(
-                f"{out} holds results made with another {k} file ({before[k].get('path')}) than "
-                f"{models[k]['path']} (sha256 differs); rerun with --force to replace them, or change `output`")
-        if changed:
-            results.clear_run(out)
+    elif old is not None and (changed := _read_beyond_the_configuration(old, inputs)) is not None:
+        if not force:
+            raise ResultsConflict(f"{out} holds results {changed}; rerun with --force to replace them, "
+                                  f"or change `output` in {exp.path}")
+        results.clear_run(out)
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(exp.path),
         "run": spec.name,
         "config": spec.resolved,
         "config_hash": spec.config_hash,
-        "model_files": models,
+        **inputs,
         "seed": spec.seed,
         "sequence_seeds": "numpy.random.default_rng([seed, crc32(sequence name)])",
         "metric_profile": spec.metrics_profile,
         "timeout_s": spec.timeout_s,
         "warnings": list(notes),
         "versions": results.package_versions(),
+        # the variables that choose what runs (e.g. MATA_EVAL_EKF_BACKEND: numba or numpy tick)
+        "environment": {k: v for k, v in sorted(os.environ.items()) if k.startswith("MATA_")},
         "git_commit": results.git_commit(),
         "machine": results.machine(),
     })

@@ -188,17 +188,20 @@ class HomographyEKF:
         parts.append({"ca": "constant acceleration model", "cj": "constant jerk model"}.get(p["model"], ""))
         if not p["gating"]:
             parts.append("no threshold on measurements")
-        if p["delay"] != PRESETS[preset]["delay"] and p["delay"] == "compensate":
-            parts.append("delay compensation")
+        if p["delay"] != PRESETS[preset]["delay"]:
+            parts.append("delay compensation" if p["delay"] == "compensate" else "measurements as current "
+                                                                                  "(delay: ignore)")
         if p["gating"] and p["tau_ewma"] != PRESETS[preset]["tau_ewma"]:
             parts.append(f"confidence gate tau_ewma = {p['tau_ewma']:g}")
+        # any other parameter set away from its preset's value: a different configuration too
+        parts += [f"{k} = {p[k]}" for k in PRESETS[preset] if k not in ("delay", "tau_ewma") and p[k] != PRESETS[preset][k]]
         return ego, True, ", ".join(x for x in parts if x) or PAPER_BLOCK_C
 
     @dataclass(frozen=True)
     class Params:
         preset: Literal["mata", "paper"] = param(
             "mata", "values of the parameters left unset: 'mata' (improved, docs/mata.md) or "
-            "'paper' (block C as published; reproduces docs/results.md)")
+            "'paper' (block C as built from the paper; the *_real.yaml experiments and the comparison runs)")
         model: Literal["cv", "ca", "cj"] = param(
             "cv", "dynamic model of the box centre: constant velocity (paper), acceleration or jerk")
         camera: bool = param(
@@ -317,6 +320,17 @@ class HomographyEKF:
                 raise ValueError(f"homography_ekf: `follow_prior` must be in [0, 1], got {self.follow_prior}")
             if self.r_box is not None and not self.r_box > 0:
                 raise ValueError(f"homography_ekf: `r_box` must be positive, got {self.r_box}")
+            for key in ("tau_ewma", "tau_diff"):   # thresholds on a confidence in [0, 1]: outside, no gate
+                v = getattr(self, key)
+                if v is not None and not 0.0 <= v <= 1.0:
+                    raise ValueError(f"homography_ekf: `{key}` must be in [0, 1] (a confidence threshold), got {v}")
+            def value(key: str) -> Any:   # as resolved() gives it (which itself builds Params)
+                v = getattr(self, key)
+                return PRESETS[self.preset].get(key) if v is None else v
+
+            if value("follow_consistent") and self.gating and not value("chi2_gate"):
+                raise ValueError("homography_ekf: `follow_consistent` tests a box's innovation against `chi2_gate`, "
+                                 "which is 0 (off): set chi2_gate > 0 or follow_consistent: false")
 
         def resolved(self) -> "HomographyEKF.Params":
             """These parameters with every unset one taken from the preset."""
