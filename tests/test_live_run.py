@@ -85,6 +85,10 @@ def test_live_run_folder_has_the_usual_files_with_real_times(live_run):
     assert called and all(np.isfinite([float(r[c]) for c in ("tracker_x", "tracker_w", "search_x", "search_w")]).all()
                           for r in called)
     assert all(r["tracker_x"] == "nan" for r in frames if r["tracker_ms"] == "nan")
+    # the prior each call was handed, and block B's record of each of its calls, as EOP's runs have
+    assert any(r["prior_x"] != "nan" for r in called)
+    moved = [r for r in frames[1:] if r["egomotion_ms"] != "nan"]
+    assert moved and all(r["motion_valid"] in ("0", "1") and float(r["motion_inliers"]) >= 0 for r in moved)
     manifest = json.loads((run / "manifest.json").read_text())
     assert manifest["config"]["protocol"]["name"] == "live"
 

@@ -118,7 +118,7 @@ def test_baseline_and_mata_under_ltp_and_eop(tmp_path):
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == ["frame", "scored", "confidence", "tracker_ms", "estimator_ms", "source_frame",
                              "tracker_x", "tracker_y", "tracker_w", "tracker_h",
-                             "search_x", "search_y", "search_w", "search_h"]
+                             "search_x", "search_y", "search_w", "search_h", "prior_x", "prior_y"]
     assert [r["frame"] for r in rows] == [str(k) for k in range(12)]
     assert [k for k, r in enumerate(rows) if r["tracker_ms"] != "nan"] == [0, 3, 6, 9]
     assert [float(r["confidence"]) for r in rows[6:]] == pytest.approx([0.9] * 6)

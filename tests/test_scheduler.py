@@ -341,11 +341,16 @@ def test_csv_rows():
                        EOP(EOP.Params(tracker_hz=10.0)), np.random.default_rng(0))
     lines = run.frames_csv().splitlines()
     assert lines[0] == ("frame,scored,confidence,tracker_ms,egomotion_ms,estimator_ms,source_frame,"
-                        "tracker_x,tracker_y,tracker_w,tracker_h,search_x,search_y,search_w,search_h")
+                        "tracker_x,tracker_y,tracker_w,tracker_h,search_x,search_y,search_w,search_h,"
+                        "prior_x,prior_y,motion_valid,motion_inliers,motion_sigma,motion_unchanged")
     assert len(lines) == 8
     row3 = lines[4].split(",")
     assert row3[0] == "3" and row3[1] == "1" and row3[2] == "nan" and row3[3] != "nan"
-    assert "nan" not in row3[7:11] and row3[11:] == ["nan"] * 4  # its box; no search region reported
+    assert "nan" not in row3[7:11] and row3[11:15] == ["nan"] * 4  # its box; no search region reported
+    # the prior handed to the call of frame 3: the centre of the estimate of t = 0.1 (LogEstimator: y = t)
+    assert float(row3[16]) == pytest.approx(0.1 + INIT.h / 2)
+    # block B's call of frame 3: a valid motion (FrameEgoMotion's: no inliers, no noise) on a new picture
+    assert row3[17:] == ["1", "0", "nan", "0"] and lines[1].split(",")[17:] == ["nan"] * 4   # frame 0: its init
     assert lines[2].split(",")[3] == "nan" and lines[2].split(",")[7] == "nan"  # no tracker call at frame 1
     assert lines[7].split(",")[6] == "6"  # the estimator output of frame 6 (computed at frame 6)
     assert read_trace_csv(run.trace_csv()) == list(run.trace)

@@ -37,8 +37,8 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from .scheduler import (BLOCKS, EPS, TRACKER_CALL_COLUMNS, BlockError, SequenceRun, TraceEvent, frames_and_fps,
-                        output_problem, start_box, tracker_call_row)
+from .scheduler import (BLOCKS, EPS, MOTION_CALL_COLUMNS, TRACKER_CALL_COLUMNS, BlockError, SequenceRun,
+                        TraceEvent, frames_and_fps, motion_call_row, output_problem, start_box, tracker_call_row)
 from ..core.sequence import Sequence
 from ..core.types import Box, Stamped
 
@@ -55,6 +55,7 @@ class Call:
     t_publish: float | None
     work_s: float
     value: Any = None
+    prior: tuple[float, float] | None = None   # a tracker call's search centre handed over
 
 
 @dataclass
@@ -258,12 +259,12 @@ def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], fl
             k, t_k, image = bus.frame
             t_start = now()
             first = last < 0
+            prior = None
             if first:
                 call = _initializer(block, obj, image, init_box, t_k)
             elif block == "egomotion":
                 call = lambda: obj.estimate(image)  # noqa: E731
             elif block == "tracker":
-                prior = None
                 if feedback:
                     est = bus.published("estimator")
                     if est:
@@ -297,7 +298,7 @@ def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], fl
             t_pub = None if cut else now()
             if first and block != "estimator":
                 value = None  # an initialisation publishes nothing (the initial box is held)
-            bus.calls[block].append(Call(block, k, t_start, t_pub, work, value))
+            bus.calls[block].append(Call(block, k, t_start, t_pub, work, value, prior))
         last = k
 
 
@@ -365,6 +366,11 @@ def assemble(camera_t: list[float], calls: Mapping[str, list[Call]], fps: float,
     rates = {b: len(calls[b]) * fps / n for b in wall_ms}
     tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)   # for `mata-eval play`, as EOP's
     for c in calls.get("tracker", [])[1:]:
-        tracker_calls[c.frame] = tracker_call_row(c.value)
+        tracker_calls[c.frame] = tracker_call_row(c.value, c.prior)
+    motion_calls = None
+    if calls.get("egomotion"):
+        motion_calls = np.full((n, len(MOTION_CALL_COLUMNS)), np.nan)
+        for c in calls["egomotion"][1:]:
+            motion_calls[c.frame] = motion_call_row(c.value)
     return SequenceRun(fps, boxes, np.ones(n, bool), confidence, source, wall_ms, tuple(trace), rates,
-                       tracker_calls=tracker_calls)
+                       tracker_calls=tracker_calls, motion_calls=motion_calls)

@@ -56,17 +56,31 @@ BLOCKS = ("egomotion", "tracker", "estimator")
 ORDER = ("egomotion", "estimator", "tracker", "estimator+")
 LANES = ("camera",) + BLOCKS
 EVENTS = ("start", "publish", "skip")
-#: ``<seq>.frames.csv`` columns of each tracker call: its box and its search region
+#: ``<seq>.frames.csv`` columns of each tracker call: its box, its search region (where the
+#: tracker reports one) and the prior it was handed (MATA's search centre; NaN: none, withheld)
 TRACKER_CALL_COLUMNS = ("tracker_x", "tracker_y", "tracker_w", "tracker_h",
-                        "search_x", "search_y", "search_w", "search_h")
+                        "search_x", "search_y", "search_w", "search_h", "prior_x", "prior_y")
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
 
 
-def tracker_call_row(output: TrackerOutput) -> tuple[float, ...]:
-    """The TRACKER_CALL_COLUMNS of one tracker call: its box, and its search region where the
-    tracker reports one (``extra`` keys ``search_x, search_y, search_w, search_h``; NaN if not)."""
+#: ``<seq>.frames.csv`` columns of each ego-motion call: whether its motion is valid, its inlier
+#: count and point noise (px), and whether it found the picture repeated (1 / 0)
+MOTION_CALL_COLUMNS = ("motion_valid", "motion_inliers", "motion_sigma", "motion_unchanged")
+
+
+def motion_call_row(motion: Motion) -> tuple[float, ...]:
+    """The MOTION_CALL_COLUMNS of one ego-motion call."""
+    sigma = math.nan if motion.sigma is None else float(motion.sigma)
+    return float(bool(motion.valid)), float(motion.inliers), sigma, float(bool(motion.unchanged))
+
+
+def tracker_call_row(output: TrackerOutput, prior: tuple[float, float] | None) -> tuple[float, ...]:
+    """The TRACKER_CALL_COLUMNS of one tracker call: its box, its search region where the tracker
+    reports one (``extra`` keys ``search_x, search_y, search_w, search_h``; NaN if not) and the
+    prior it was handed (NaN when none)."""
     b, ex = output.box, output.extra or {}
-    return (b.x, b.y, b.w, b.h) + tuple(float(ex.get(c, math.nan)) for c in TRACKER_CALL_COLUMNS[4:])
+    return ((b.x, b.y, b.w, b.h) + tuple(float(ex.get(c, math.nan)) for c in TRACKER_CALL_COLUMNS[4:8])
+            + ((math.nan, math.nan) if prior is None else (float(prior[0]), float(prior[1]))))
 
 
 # --- timing specs (what a protocol gives the scheduler) ----------------------------------------
@@ -199,11 +213,14 @@ class SequenceRun:
     rates_hz: Mapping[str, float]
     bad_frames: tuple[tuple[int, str], ...] = ()
     tracker_calls: np.ndarray | None = None
+    motion_calls: np.ndarray | None = None
 
     def frames_csv(self) -> str:
         cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
         if self.tracker_calls is not None:
             cols += list(TRACKER_CALL_COLUMNS)
+        if self.motion_calls is not None:
+            cols += list(MOTION_CALL_COLUMNS)
         out = io.StringIO()
         out.write(",".join(cols) + "\n")
         conf = [_fmt(v) for v in self.confidence]
@@ -213,6 +230,8 @@ class SequenceRun:
             cells.append(str(int(self.source_frame[k])))
             if self.tracker_calls is not None:
                 cells += [_fmt(v) for v in self.tracker_calls[k]]
+            if self.motion_calls is not None:
+                cells += [_fmt(v) for v in self.motion_calls[k]]
             out.write(",".join(cells) + "\n")
         return out.getvalue()
 
@@ -381,6 +400,7 @@ def sequence_steps(
     consumed = {"egomotion": 0, "tracker": 1}  # estimator's read position (tracker: after the init box)
     wall_ms = {b: np.full(n, np.nan) for b in ("tracker", "egomotion", "estimator") if b in active}
     tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)
+    motion_calls = np.full((n, len(MOTION_CALL_COLUMNS)), np.nan)
     trace: list[TraceEvent] = []
     t_end = (n - 1) / fps
     init_box = start_box(sequence)
@@ -500,6 +520,8 @@ def sequence_steps(
                 wall = clock() - t0
                 if not first and not isinstance(value, Motion):
                     raise BlockError(b, k, tk, f"expected a Motion, got {type(value).__name__}")
+                if not first:
+                    motion_calls[k] = motion_call_row(value)
             elif b == "tracker":
                 img = frame_image()
                 if first:
@@ -512,7 +534,7 @@ def sequence_steps(
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
                     _check_output("tracker", value, k, tk)
-                    tracker_calls[k] = tracker_call_row(value)
+                    tracker_calls[k] = tracker_call_row(value, prior)
             else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
                     t0 = clock()
@@ -563,7 +585,7 @@ def sequence_steps(
     # due at t_k before the starts of frame k; a zero-latency publish right after its start).
     trace.sort(key=lambda e: (e.frame, round(e.t / EPS)))  # times equal within EPS tie
     return SequenceRun(fps, boxes, scored, confidence, source, wall_ms, tuple(trace), rates, tuple(bad_frames),
-                       tracker_calls)
+                       tracker_calls, motion_calls if egomotion is not None else None)
 
 
 def _first_frame_at(t: float, fps: float) -> int:
