@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import os
 import sys
@@ -240,32 +241,48 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
     all_scores = []
+    args.results_dirs = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
+    run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     try:
         configs = {d: _run_config(d, args.dataset) for d in args.results_dirs}   # each manifest read once
         first = configs[args.results_dirs[0]]
         if args.root is None and not sets and first:
             # a run folder of this dataset: the dataset as that run loaded it, not the default
-            # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count)
+            # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count), its
+            # relative paths from the folder it ran in
+            from .run.results import in_run_cwd, read_manifest
+
             sets = {k: v for k, v in first["dataset"].items() if k != "name" and v is not None}
             print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
-        seqs = load_dataset(args.dataset, args.root, sets)
-        for results_dir in args.results_dirs:
+            manifest = read_manifest(Path(args.results_dirs[0]))
+            run_cwd = lambda: in_run_cwd(manifest)  # noqa: E731
+        with run_cwd():
+            seqs = load_dataset(args.dataset, args.root, sets)
+    except (FileNotFoundError, ValueError, KeyError) as exc:
+        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        return 2
+    bad = 0   # a folder that cannot be scored is said, and the others are still scored (QA pass)
+    for results_dir in args.results_dirs:
+        try:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
-                run_seqs = _as_the_run_saw_them(seqs, results_dir, configs[results_dir])
+                with run_cwd():   # frame 0 of each sequence, for the run's occlusion augmentation
+                    run_seqs = _as_the_run_saw_them(seqs, results_dir, configs[results_dir])
                 scores = evaluate_results(results_dir, run_seqs, args.profile, layout="mata")
                 if not args.no_save:
                     try:
                         print(f"wrote {save_scores(results_dir, scores)}")
                     except OSError as exc:
-                        print(f"error: cannot write scores.json into {results_dir} ({exc.strerror}); "
-                              f"use --no-save, or --output DIR to write it elsewhere", file=sys.stderr)
-                        return 2
+                        raise ValueError(f"cannot write scores.json into {results_dir} ({exc.strerror}); "
+                                         f"use --no-save, or --output DIR to write it elsewhere") from None
             else:
                 scores = evaluate_results(results_dir, seqs, args.profile, layout=layout, name=args.name)
-            all_scores.append(scores)
-    except (FileNotFoundError, ValueError, KeyError) as exc:
-        print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+        except (FileNotFoundError, ValueError, KeyError) as exc:
+            print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
+            bad += 1
+            continue
+        all_scores.append(scores)
+    if not all_scores:
         return 2
     if args.output:
         print(f"wrote {save_scores(Path(args.output), all_scores[0])}")
@@ -279,6 +296,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
             un = scores.meta["unmatched_results"]
             print(f"{len(un)} result file(s){where} match no sequence of {args.dataset}: {', '.join(un[:10])}"
                   + (" ..." if len(un) > 10 else ""))
+    if bad:
+        return 2
     return 0 if all(s.sequences for s in all_scores) else 1
 
 
@@ -428,6 +447,7 @@ def cmd_per_sequence(args: argparse.Namespace) -> int:
     from .report.tables import render
     from .score.evaluate import ScoresUnavailable, scores_for
 
+    args.run_dirs = _without_report_folders(args.run_dirs)   # `report out/* --per-sequence` (QA pass)
     if len(args.run_dirs) != 2:
         print(f"error: --per-sequence compares exactly two run folders, got {len(args.run_dirs)}", file=sys.stderr)
         return 2
@@ -487,6 +507,14 @@ def cmd_augment(args: argparse.Namespace) -> int:
             sequences = dataset.sequences()
     except (ConfigError, KeyError, ValueError) as e:
         print(f"mata-eval augment: {e}")
+        return 2
+    out = Path(args.out).resolve()
+    sources = {Path(args.root).resolve()} if args.root else set()
+    sources |= {Path(s.frame_paths[0]).resolve().parent for s in sequences if s.frame_paths}
+    clash = next((src for src in sources if out == src or out in src.parents or src in out.parents), None)
+    if clash is not None:   # QA pass: `--force` into the root replaced the frames it was reading
+        print(f"mata-eval augment: {args.out} overlaps the dataset it reads ({clash}); write the augmented "
+              "copy to another folder")
         return 2
     try:
         names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True,

@@ -233,3 +233,28 @@ def test_runs_of_the_built_in_plugins_record_no_plugin_versions():
 
     exp = load_experiment(find_experiment("quickstart"))
     assert exp.runs and all("plugin_versions" not in r.resolved for r in exp.runs)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("dataset: toy\ntracker: a\nseed: -1\n", "seed: expected an integer seed >= 0, got -1"),
+    ("dataset: toy\ntracker: a\nmatrix: [a, b]\n", "matrix: expected a mapping of axes"),
+    ("dataset: toy\ntracker: a\nmatrix: {o: {x: {output: /elsewhere}, y: {}}}\n", "cannot override 'output' in a matrix"),
+    ("dataset: toy\ntracker: a\nmatrix: {m: {A: {}, a: {}}}\n", "duplicate run names (letter case aside)"),
+    ("dataset: toy\ntracker: a\nmatrix: {m: {" + "x" * 101 + ": {}}}\n", "at most 100 characters"),
+    ("dataset: toy\ntracker: a\nmatrix: {m: {\"a|b\": {}}}\n", "expected one folder name"),
+    ("dataset: toy\ntracker: a\nmatrix: {m: {\"a\\nb\": {}}}\n", "expected one folder name"),
+])
+def test_what_passed_validate_and_failed_later_is_refused_when_loaded(tmp_path, text, message):
+    """QA pass (adversarial inputs): each passed `validate`, then failed every sequence, was
+    ignored, or wrote folders a file system refuses or merges."""
+    assert message in error(tmp_path, text)
+
+
+def test_an_experiment_file_is_utf8_whatever_the_locale(tmp_path, monkeypatch):
+    p = tmp_path / "exp.yaml"
+    p.write_bytes("# café\ndataset: toy\ntracker: a\n".encode("utf-8"))
+    monkeypatch.setattr("locale.getpreferredencoding", lambda *a, **k: "ascii")
+    assert load_experiment(p, REG).runs[0].name == "exp"
+    p.write_bytes(b"# caf\xe9\ndataset: toy\ntracker: a\n")     # Latin-1
+    with pytest.raises(ConfigError, match="not UTF-8 text .byte 5.: save the experiment file as UTF-8"):
+        load_experiment(p, REG)

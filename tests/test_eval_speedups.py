@@ -4,6 +4,7 @@ frame paths built only when a frame is read, `--version` without the packages.""
 from __future__ import annotations
 
 import pickle
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -100,6 +101,14 @@ def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsy
     assert _rows(capsys.readouterr().out)["SiamAPN"] == rows["SiamAPN"]
     assert cli.main(["eval", *both, *common, "--output", str(tmp_path / "o")]) == 2
     assert "--name and --output take one RESULTS_DIR" in capsys.readouterr().err
+    # a folder that cannot be scored in the middle: said, and the others scored (QA pass: the
+    # call stopped there, and the last folder was never scored)
+    bad = tmp_path / "DTB70" / "Broken"
+    shutil.copytree(both[1], bad)
+    (bad / "Animal1.txt").write_text("1,2,3\n")
+    assert cli.main(["eval", both[0], str(bad), both[1], *common]) == 2
+    out, err = capsys.readouterr()
+    assert set(_rows(out)) == {"SiamAPN++", "SiamAPN"} and "Animal1.txt" in err
 
 
 def test_version_answers_without_importing_the_packages():

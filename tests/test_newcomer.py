@@ -6,7 +6,9 @@ that the run folders hold."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import textwrap
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -233,3 +235,32 @@ def test_docs_name_only_files_a_clone_has():
                 assert (root / token.split(":")[0]).exists(), f"{doc.name} names {token}, which a clone has not"
         for note in ("DESIGN.md", "MODELS.md", "EVAL_TOOLKITS.md", "mata-paper.tex"):
             assert note not in text, f"{doc.name} names {note}, which a clone has not"
+
+
+def test_a_run_rebuilt_from_another_folder_reads_its_own_relative_paths(tmp_path, monkeypatch, capsys):
+    """`report` (scoring a run without scores.json), `eval` and `play` rebuild the run's dataset
+    from its manifest: a relative `root` is the folder the run ran in, not the namesake in the
+    folder they are called from (QA pass: another folder's data/ was scored and drawn, and the
+    wrong scores saved into the run folder)."""
+    from mata_eval import cli
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    for folder in (a, b):
+        _folder_dataset(folder / "data")
+    gt = b / "data" / "square" / "groundtruth_rect.txt"   # b's namesake: the target 60 px away
+    gt.write_text("".join(f"{100 + 2 * k},40,20,20\n" for k in range(12)))
+    monkeypatch.chdir(a)
+    (a / "exp.yaml").write_text("output: out\ndataset: {name: folder, root: data}\ntracker: {name: kcf}\n")
+    assert cli.main(["run", "exp.yaml", "-q", "--no-report"]) == 0
+    run = a / "out" / "exp"
+    sr = me.evaluate(run, dataset="folder", root=a / "data").overall.sr
+    assert sr > 0.9                                        # kcf keeps the square on its own data
+    monkeypatch.chdir(b)
+    capsys.readouterr()
+    assert cli.main(["report", str(run)]) == 0             # no scores.json yet: scored here
+    assert json.loads((run / "scores.json").read_text())["summary"]["overall"]["sr"] == pytest.approx(sr)
+    (run / "scores.json").unlink()
+    assert cli.main(["eval", str(run), "--dataset", "folder"]) == 0
+    assert json.loads((run / "scores.json").read_text())["summary"]["overall"]["sr"] == pytest.approx(sr)
+    assert cli.main(["play", str(run), "--sequence", "square", "--out", "sheet.png", "--sheet", "2"]) == 0
+    assert (b / "sheet.png").is_file() and Path.cwd() == b  # written where asked, and back in b

@@ -191,6 +191,14 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
     assert args.func(args) == 0
     np.testing.assert_allclose(synth.load_true_homographies(tmp_path / "out2", name),
                                synth.load_true_homographies(tmp_path / "syn", name), rtol=1e-9)
+    # never into the dataset it reads, not even with --force (QA pass: the source frames were replaced)
+    frame = tmp_path / "syn" / "data_seq" / "UAV123" / name / "000008.jpg"
+    before = frame.read_bytes()
+    for out in (tmp_path / "syn", tmp_path / "syn" / "data_seq"):
+        capsys.readouterr()
+        args = parser.parse_args(["augment", str(out), "--root", str(tmp_path / "syn"), "--n-events", "1", "--force"])
+        assert args.func(args) == 2 and "overlaps the dataset it reads" in capsys.readouterr().out
+    assert frame.read_bytes() == before
 
 
 def test_every_run_of_an_experiment_sees_the_same_occlusions(tmp_path):
@@ -248,3 +256,20 @@ def test_augment_cli_takes_dataset_parameters_such_as_the_frame_rate(tmp_path):
         (event,) = json.loads((out / "anno" / "UAV123" / "occlusion" / "clip.events.json").read_text())
         spans[fps] = event["end"] - event["start"] + 1
     assert spans == {None: 31, 10: 11}, spans   # duration x fps frames after the first
+
+
+@pytest.mark.parametrize("values, where", [
+    ({"duration": float("nan")}, "duration"), ({"duration": float("inf")}, "duration"),
+    ({"jitter": -1.0}, "jitter"), ({"jitter": float("nan")}, "jitter"), ({"size": [1.0, float("inf")]}, "size"),
+    ({"skip_start": -1}, "skip_start"), ({"events": [{"start": 5, "end": 2}]}, "events.0"),
+    ({"events": [{"start": -5, "end": 3}]}, "events.0.start"), ({"events": [{"start": 0.5, "end": 0.2}]}, "events.0"),
+    ({"events": [{"start": 2, "end": 8}]}, "events.0")])
+def test_impossible_occlusion_settings_are_refused_when_loaded(values, where):
+    """QA pass: each passed `validate`, then failed every sequence with a numpy traceback, or was
+    dropped without a word (an event before skip_start, or ending before it starts)."""
+    from mata_eval.core.errors import ConfigError
+    from mata_eval.params import build_params
+
+    with pytest.raises(ConfigError) as err:
+        build_params(OcclusionParams, values, ("occlusion",))
+    assert err.value.keypath == ("occlusion",) + tuple(int(k) if k.isdigit() else k for k in where.split("."))

@@ -108,3 +108,18 @@ def test_command_line_key_values_are_read_as_yaml():
     for bad in ("novalue", "=3"):
         with pytest.raises(ValueError, match="expected KEY=VALUE"):
             parse_key_values([bad])
+
+
+def test_a_number_yaml_reads_as_text_gets_a_hint():
+    """YAML 1.1 reads 3e1 (no dot, no exponent sign) as a string: the message says so (QA pass:
+    'expected float, got '3e1' (str)' read as nonsense to whoever typed a number)."""
+    import yaml
+
+    @dataclass(frozen=True)
+    class Rate:
+        fps: float = param(30.0, "frames per second")
+
+    with pytest.raises(ConfigError, match=r"YAML reads 3e1 as text .*write 30.0 or 3.0e\+01"):
+        build_params(Rate, yaml.safe_load("{fps: 3e1}"))
+    with pytest.raises(ConfigError, match=r"got 'fast' \(str\)$"):
+        build_params(Rate, {"fps": "fast"})

@@ -109,6 +109,13 @@ def test_contact_sheet_and_one_line_errors(runs, capsys):
     assert main(["play", str(dirs[1]), "--sequence", SEQ, "--out", str(tmp / "x.mp4"), "--frames", "0:500"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(line.startswith("mata-eval play: ") for line in err)
+    # a sheet into a video name, a video into an image name, a negative sheet: one line each, before
+    # any frame is drawn (QA pass: an OpenCV traceback, or the video's message for a sheet)
+    for args, words in ((["--sheet", "4", "--out", str(tmp / "s.mp4")], "a contact sheet is an image"),
+                        (["--out", str(tmp / "v.png")], "expected a .mp4 or .avi file name"),
+                        (["--sheet", "-3", "--out", str(tmp / "s.png")], "--sheet -3: expected a number of frames")):
+        assert main(["play", str(dirs[1]), "--sequence", SEQ] + args) == 2
+        assert words in capsys.readouterr().err
 
 
 def test_mata_run_records_the_trackers_box_and_search_region(runs):

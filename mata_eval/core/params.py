@@ -109,7 +109,15 @@ def build_params(
 
 def _coerce(value: Any, tp: Any, kp: tuple, where: Callable) -> Any:
     def fail() -> typing.NoReturn:
-        raise ConfigError(where(kp), kp, f"expected {_type_name(tp)}, got {value!r} ({type(value).__name__})")
+        hint = ""
+        if isinstance(value, str) and "float" in _type_name(tp):
+            try:
+                float(value)
+                hint = (f"; YAML reads {value} as text (an exponent needs a dot and a sign there: "
+                        f"write {float(value)!r} or {float(value):.1e})")
+            except ValueError:
+                pass
+        raise ConfigError(where(kp), kp, f"expected {_type_name(tp)}, got {value!r} ({type(value).__name__}){hint}")
 
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)

@@ -74,17 +74,29 @@ class OcclusionParams:
                 fail(("events", i, "shape"), f"expected one of {', '.join(SHAPES)}, got {e['shape']!r}")
             for key in ("start", "end"):
                 v = e[key]
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not 0 <= v <= 1):
-                    fail(("events", i, key), f"expected a frame index (int) or a fraction in [0, 1] (float), got {v!r}")
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or (isinstance(v, float) and not 0 <= v <= 1) \
+                        or (isinstance(v, int) and v < 0):
+                    fail(("events", i, key), f"expected a frame index >= 0 (int) or a fraction in [0, 1] (float), "
+                                             f"got {v!r}")
+            if type(e["start"]) is type(e["end"]) and e["end"] < e["start"]:   # QA pass: dropped without a word
+                fail(("events", i), f"ends before it starts: {e!r}")
         if self.n_events < 0:
             fail(("n_events",), f"expected >= 0, got {self.n_events}")
-        if self.duration <= 0:
+        if not 0 < self.duration < math.inf:
             fail(("duration",), f"expected seconds > 0, got {self.duration}")
+        if self.skip_start < 0:
+            fail(("skip_start",), f"expected frames >= 0, got {self.skip_start}")
+        for i, e in enumerate(self.events):
+            if isinstance(e["end"], int) and e["end"] < self.skip_start:
+                fail(("events", i), f"ends at frame {e['end']}, within skip_start ({self.skip_start}: the first "
+                                    "frames are never occluded); it would be dropped")
+        if not 0 <= self.jitter < math.inf:
+            fail(("jitter",), f"expected a standard deviation >= 0, got {self.jitter}")
         for key in ("size", "alpha", "hit_points"):
             lo, hi = getattr(self, key)
-            if not 0 <= lo <= hi or (key == "alpha" and hi > 1):
+            if not 0 <= lo <= hi < math.inf or (key == "alpha" and hi > 1):
                 fail((key,), f"expected a range [low, high] with 0 <= low <= high"
-                             f"{' <= 1' if key == 'alpha' else ''}, got {list(getattr(self, key))!r}")
+                             f"{' <= 1' if key == 'alpha' else ' (finite)'}, got {list(getattr(self, key))!r}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -273,6 +273,19 @@ def play(run_dirs: Seq[str | Path], seq: str, out: str | Path, frames: tuple[int
     """Draw runs ``run_dirs`` on sequence ``seq`` into ``out``: a video of the frames ``A:B``
     (half-open; default all), or with ``sheet`` > 0 a PNG contact sheet of that many frames
     spread evenly over the range. Returns the file and the number of frames drawn."""
+    out = Path(out).resolve()
+    run_dirs = [Path(d).resolve() for d in run_dirs]
+    with results.in_run_cwd(results.read_manifest(run_dirs[0])):   # the run's relative paths, as it ran
+        return _play(run_dirs, seq, out, frames, sheet)
+
+
+def _play(run_dirs: Seq[Path], seq: str, out: Path, frames: tuple[int, int] | None, sheet: int) -> tuple[Path, int]:
+    if sheet < 0:
+        raise ValueError(f"--sheet {sheet}: expected a number of frames >= 1")
+    if sheet and out.suffix.lower() not in (".png", ".jpg", ".jpeg"):   # checked before any frame is drawn
+        raise ValueError(f"{out}: a contact sheet is an image; expected a .png or .jpg name")
+    if not sheet and out.suffix.lower() not in FOURCC:
+        raise ValueError(f"{out}: expected a .mp4 or .avi file name (or --sheet N and a .png name)")
     sequence = sequence_of_run(Path(run_dirs[0]), seq)
     n = len(sequence)
     tracks = [read_run_track(Path(d), seq, n) for d in run_dirs]
@@ -280,7 +293,6 @@ def play(run_dirs: Seq[str | Path], seq: str, out: str | Path, frames: tuple[int
     if not 0 <= a < b <= n:
         raise ValueError(f"--frames {a}:{b}: sequence {seq!r} has frames 0:{n}")
     colours = run_colours(len(tracks))
-    out = Path(out)
     if sheet:
         picks = sorted(set(np.linspace(a, b - 1, num=min(sheet, b - a)).round().astype(int).tolist()))
         grid = contact_sheet(list(_frames(tracks, sequence, picks, colours)))

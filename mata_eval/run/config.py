@@ -58,7 +58,7 @@ NULLABLE = {"egomotion", "estimator", "occlusion"}
 TOP_LEVEL = {"name", "description", "seed", "output", "dataset", "occlusion", "tracker",
              "egomotion", "estimator", "feedback", "protocol", "metrics", "matrix", "timeout_s",
              "on_bad_frame", "optional"}
-NOT_OVERRIDABLE = {"matrix", "name", "optional"}
+NOT_OVERRIDABLE = {"matrix", "name", "optional", "output"}   # output: one per experiment, runs are folders in it
 DEFAULTS: dict[str, Any] = {"seed": 0, "egomotion": None, "estimator": None, "occlusion": None,
                             "feedback": True, "protocol": {"name": "ltp"},
                             "metrics": {"profile": "default"}, "timeout_s": 60.0, "on_bad_frame": "fail"}
@@ -242,10 +242,17 @@ def _check_expansion(root: yaml.Node | None, path: Path) -> None:
         size(root)
 
 
+#: longest run name or matrix label: run names join the labels, and file systems stop at 255 bytes
+MAX_NAME = 100
+
+
 def _check_folder_name(name: str, locate: _Locator, kp: KeyPath) -> None:
-    """Run names and matrix labels name folders inside the output folder: one name, no path."""
-    if not is_file_name(name):
-        raise ConfigError(locate(kp), kp, f"expected one folder name (no '/', no '..', not absolute), "
+    """Run names and matrix labels name folders inside the output folder: one name, no path, no
+    control or Windows-reserved character, at most MAX_NAME characters."""
+    if not is_file_name(name) or any(c in name for c in '<>:"|?*') or any(ord(c) < 32 for c in name) \
+            or len(name) > MAX_NAME:
+        raise ConfigError(locate(kp), kp, f"expected one folder name (no '/', no '..', not absolute, none of "
+                                          f"<>:\"|?* or control characters, at most {MAX_NAME} characters), "
                                           f"got {name!r}: the run's results go to <output>/<name>")
 
 
@@ -258,7 +265,9 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
         if size > MAX_FILE_BYTES:
             raise ConfigError(str(path), (), f"the file is {size / 1e6:.1f} MB; the limit is "
                                              f"{MAX_FILE_BYTES / 1e6:g} MB (experiment files hold settings, not data)")
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")   # YAML is UTF-8, whatever the locale says
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(path), (), f"not UTF-8 text (byte {exc.start}): save the experiment file as UTF-8") from None
     except OSError as exc:
         shipped = ", ".join(p.stem for p in shipped_experiments())
         raise ConfigError(str(path), (), f"cannot read experiment file: {exc.strerror}"
@@ -303,8 +312,9 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
                                         optional=bool(optional & set(label_parts))))
     raise_all(errors)
     names = [r.name for r in runs]
-    if len(set(names)) != len(names):
-        raise ConfigError(locate(("matrix",)), ("matrix",), f"matrix labels give duplicate run names: {names}")
+    if len({n.casefold() for n in names}) != len(names):   # one folder on a case-insensitive file system
+        raise ConfigError(locate(("matrix",)), ("matrix",), f"matrix labels give duplicate run names "
+                                                             f"(letter case aside): {names}")
     output = doc.get("output", f"results/{path.stem}")
     if not isinstance(output, str):
         raise ConfigError(locate(("output",)), ("output",), f"expected a folder path, got {output!r}")
@@ -319,8 +329,10 @@ def _optional_labels(doc: dict, locate: _Locator) -> set[str]:
     value = doc.get("optional") or []
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise ConfigError(locate(("optional",)), ("optional",), f"expected a list of matrix labels, got {value!r}")
-    labels = {str(label) for options in (doc.get("matrix") or {}).values() if isinstance(options, dict)
-              for label in options}
+    matrix = doc.get("matrix") or {}
+    if not isinstance(matrix, dict):   # (checked here first: this reads the matrix before _expand)
+        raise ConfigError(locate(("matrix",)), ("matrix",), "expected a mapping of axes: axis -> {label: overrides}")
+    labels = {str(label) for options in matrix.values() if isinstance(options, dict) for label in options}
     unknown = [v for v in value if v not in labels]
     if unknown:
         raise ConfigError(locate(("optional",)), ("optional",),
@@ -449,6 +461,8 @@ def _resolve_rest(run_name: str, cfg: dict, where: Callable[[KeyPath], str], blo
     seed = cfg["seed"]
     if not isinstance(seed, int) or isinstance(seed, bool):
         raise ConfigError(where(("seed",)), ("seed",), f"expected an integer seed, got {seed!r}")
+    if seed < 0:   # numpy's generators take seeds >= 0 (every sequence failed on -1)
+        raise ConfigError(where(("seed",)), ("seed",), f"expected an integer seed >= 0, got {seed}")
     feedback = cfg["feedback"]
     if not isinstance(feedback, bool):
         raise ConfigError(where(("feedback",)), ("feedback",), f"expected true or false, got {feedback!r}")

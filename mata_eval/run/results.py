@@ -3,6 +3,7 @@ prediction file ``<seq>.txt`` is written last, so its presence marks a finished 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import io
@@ -13,7 +14,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -30,7 +31,7 @@ def atomic_write_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", newline="") as f:
+        with os.fdopen(fd, "w", newline="", encoding="utf-8") as f:
             f.write(text)
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600 files; results are shared files
         os.replace(tmp, path)
@@ -89,7 +90,7 @@ def read_predictions(path: Path) -> np.ndarray:
 
     numpy's parser reads the file (it rounds like ``float()``); a file it rejects is read again
     line by line to name the first bad line."""
-    text = Path(path).read_text()
+    text = Path(path).read_text(encoding="utf-8")
     if not text.strip():
         return np.empty((0, 4))
     try:
@@ -155,7 +156,7 @@ class CorruptFile(UserError, ValueError):
 
 def read_json(path: Path) -> Any:
     try:
-        return json.loads(Path(path).read_text())
+        return json.loads(Path(path).read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CorruptFile(f"{path}: not valid JSON ({exc}); delete it (or rerun with --force)") from None
 
@@ -189,6 +190,25 @@ def clear_run(run_dir: Path) -> None:
     for suffix in SEQUENCE_FILES:
         for p in Path(run_dir).glob(f"*{suffix}"):
             p.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def in_run_cwd(manifest: dict | None) -> Iterator[None]:
+    """Relative paths of a run's configuration (a dataset ``root``, an annotation folder) are
+    the folder ``mata-eval run`` ran in, which its manifest records (``cwd``): while a run is
+    rebuilt from its manifest (``report`` scoring it, ``play``, ``eval``), that folder is the
+    working folder. Without the record (older manifests) or the folder, nothing changes. Callers
+    make their own paths absolute first."""
+    cwd = (manifest or {}).get("cwd")
+    if not cwd or not os.path.isdir(cwd) or os.path.realpath(cwd) == os.path.realpath(os.getcwd()):
+        yield
+        return
+    before = os.getcwd()
+    os.chdir(cwd)
+    try:
+        yield
+    finally:
+        os.chdir(before)
 
 
 def file_sha256(path: str | Path) -> str:

@@ -56,7 +56,9 @@ _SEQUENCES: dict[str, list[Sequence]] = {}
 def load_sequences(spec: RunSpec) -> list[Sequence]:
     """The run's sequences (annotations, lazily loaded frames), with the occlusion augmentation
     applied on the fly when the experiment asks for it. Cached per process."""
-    key = json.dumps([spec.resolved["dataset"], spec.resolved["occlusion"], spec.seed], sort_keys=True, default=str)
+    # the working folder too: a relative `root` names another dataset in another folder
+    key = json.dumps([spec.resolved["dataset"], spec.resolved["occlusion"], spec.seed, os.getcwd()],
+                     sort_keys=True, default=str)
     if key not in _SEQUENCES:
         _SEQUENCES[key] = [as_run_sees_it(s, spec) for s in base_sequences(spec)]
     return _SEQUENCES[key]
@@ -138,7 +140,8 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
         results.clear_run(out)
     results.write_manifest(out, {
         "experiment": exp.name,
-        "experiment_file": str(exp.path),
+        "experiment_file": str(Path(exp.path).resolve()),
+        "cwd": os.getcwd(),   # where the configuration's relative paths point (results.in_run_cwd)
         "run": spec.name,
         "config": spec.resolved,
         "config_hash": spec.config_hash,

@@ -15,6 +15,7 @@ import contextlib
 import dataclasses
 import heapq
 import json
+import os
 import traceback
 import warnings
 import zlib
@@ -129,7 +130,7 @@ _BASE: dict[str, list[Sequence]] = {}
 
 def base_sequences(spec: RunSpec) -> list[Sequence]:
     """The sequences of the run's dataset (annotations; frames load lazily), cached per process."""
-    key = _key(spec.resolved["dataset"])
+    key = _key(spec.resolved["dataset"], os.getcwd())   # a relative root: another dataset in another folder
     if key not in _BASE:
         _BASE[key] = list(spec.dataset.create().sequences())
     return _BASE[key]

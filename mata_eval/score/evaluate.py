@@ -354,7 +354,7 @@ class ScoresUnavailable(RuntimeError):
 def scores_for(run_dir: Path) -> RunScores:
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
     experiment file can still be loaded; otherwise :class:`ScoresUnavailable` says what to do."""
-    d = Path(run_dir)
+    d = Path(run_dir).resolve()
     if d.is_file() or (d / SCORES).is_file():
         return load_scores(d)
     manifest = results.read_manifest(d)
@@ -368,14 +368,15 @@ def scores_for(run_dir: Path) -> RunScores:
     from ..run.config import load_experiment
     from ..run.runner import load_sequences
 
-    exp = load_experiment(exp_file)
-    spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
-    if spec is None:
-        raise ScoresUnavailable(f"{d}: no {SCORES}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
-    if spec.config_hash != manifest.get("config_hash"):
-        raise ScoresUnavailable(f"{d}: no {SCORES}, and {exp_file} now describes run {spec.name!r} differently "
-                                f"(config hash changed); {hint}")
-    return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
+    with results.in_run_cwd(manifest):   # its relative dataset root, not this folder's namesake
+        exp = load_experiment(exp_file)
+        spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
+        if spec is None:
+            raise ScoresUnavailable(f"{d}: no {SCORES}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
+        if spec.config_hash != manifest.get("config_hash"):
+            raise ScoresUnavailable(f"{d}: no {SCORES}, and {exp_file} now describes run {spec.name!r} differently "
+                                    f"(config hash changed); {hint}")
+        return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
 
 
 def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[RunScores]:

@@ -132,7 +132,7 @@ class EOP:
             for key, value in jit.items():
                 if key not in BLOCKS:
                     raise ValueError(f"eop: jitter_s: unknown block {key!r}; blocks: {', '.join(BLOCKS)}")
-                if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
                     raise ValueError(f"eop: jitter_s.{key}: expected seconds >= 0, got {value!r}")
 
     def __init__(self, params: Params | None = None):

@@ -134,6 +134,24 @@ class KCFTracker:
         min_size: float = param(4.0, "smallest allowed box side, pixels")
         colour: bool = param(True, "add CIELab a/b cell means to the HOG-like features (colour input)")
 
+        def __post_init__(self) -> None:
+            """Ranges (checked when the experiment is loaded; QA pass: a NaN padding, a zero scale
+            step or an infinite learning rate failed, or quietly spoiled, every sequence)."""
+            finite = ("padding", "kernel_sigma", "lambda_", "output_sigma_factor", "learning_rate", "scale_step",
+                      "scale_penalty", "psr_low", "psr_high", "update_threshold", "min_size")
+            for key in finite:
+                if not math.isfinite(getattr(self, key)):
+                    raise ValueError(f"kcf: {key}: expected a finite number, got {getattr(self, key)!r}")
+            checks = {"padding": self.padding >= 0, "kernel_sigma": self.kernel_sigma > 0, "lambda_": self.lambda_ > 0,
+                      "output_sigma_factor": self.output_sigma_factor > 0, "learning_rate": 0 <= self.learning_rate <= 1,
+                      "scale_step": self.scale_step >= 1, "scale_penalty": 0 < self.scale_penalty <= 1,
+                      "min_size": self.min_size > 0, "template_size": 16 <= self.template_size <= 1024}
+            expected = {"padding": ">= 0", "learning_rate": "in [0, 1]", "scale_step": ">= 1 (1: one scale)",
+                        "scale_penalty": "in (0, 1]", "template_size": "in [16, 1024] pixels"}
+            for key, ok in checks.items():
+                if not ok:
+                    raise ValueError(f"kcf: {key}: expected {expected.get(key, '> 0')}, got {getattr(self, key)!r}")
+
     def __init__(self, params: "KCFTracker.Params | None" = None):
         self.params = params or self.Params()
         p = self.params
