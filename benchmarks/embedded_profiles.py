@@ -1,6 +1,7 @@
 """The timing profiles of the device that experiments/embedded.yaml emulates (Table 4;
 docs/decisions/paper.md "Table 4"): every tracker call's wall time in the ``vot_rt`` baseline
-runs of that file (the "device" measuring itself; initialisation left out), 1000 drawn with numpy
+runs of that file (the "device" measuring itself; the initialisation and each sequence's first call, which
+vot_rt's grace forgives, left out), 1000 drawn with numpy
 seed 0 (all of them if fewer), times the run's ``time_scale``, written as ``<out>/<tracker>-x<scale>.json``.
 
     mata-eval run experiments/embedded.yaml -j 1 --force --runs kcf-baseline-embedded vittrack-baseline-embedded
@@ -36,10 +37,10 @@ def tracker_wall_s(folder: Path) -> np.ndarray:
     out = []
     for frames in sorted(folder.glob("*.frames.csv")):
         with open(frames) as f:
-            for row in csv.DictReader(f):
-                ms = float(row.get("tracker_ms") or "nan")
-                if math.isfinite(ms) and int(row["frame"]) > 0:
-                    out.append(ms / 1e3)
+            calls = [float(row.get("tracker_ms") or "nan") for row in csv.DictReader(f) if int(row["frame"]) > 0]
+        # the first call of each sequence left out too: its one-off costs (VitTrack creates its ONNX
+        # Runtime session then, 164 ms against 8-12) are what vot_rt's grace forgives
+        out += [ms / 1e3 for ms in calls if math.isfinite(ms)][1:]
     return np.asarray(out)
 
 
