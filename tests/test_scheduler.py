@@ -3,6 +3,8 @@ whose outputs encode the frame they saw (DESIGN.md "One scheduler, four protocol
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 
 import numpy as np
@@ -390,3 +392,27 @@ def test_trace_alternates_start_and_publish_per_block(proto):
         assert seq[1::2] == ["publish"] * len(seq[1::2])
     frames = [e.frame for e in run.trace]
     assert frames == sorted(frames)
+
+
+def test_recording_the_estimators_state_adds_columns_and_changes_nothing(monkeypatch):
+    """MATA_EVAL_RECORD=1: after each estimator tick the filter's diagnostics() go into est_*
+    columns of frames.csv (the diagnosis docs/mata.md did with a patched filter); the boxes are
+    the same as without recording, and a run without the variable has no such column."""
+    from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
+
+    def run():
+        return run_sequence(make_sequence(9), FrameTracker(), FrameEgoMotion(), HomographyEKF(),
+                            EOP(EOP.Params(tracker_hz=10.0)), np.random.default_rng(0))
+
+    plain = run()
+    assert "est_" not in plain.frames_csv()
+    monkeypatch.setenv("MATA_EVAL_RECORD", "1")
+    recorded = run()
+    np.testing.assert_array_equal(recorded.boxes, plain.boxes)
+    rows = list(csv.DictReader(io.StringIO(recorded.frames_csv())))
+    assert [c for c in rows[0] if c.startswith("est_")] == ["est_vx", "est_vy", "est_sd_cx", "est_sd_cy",
+                                                          "est_boxes_used", "est_ewma", "est_nis"]
+    assert rows[0]["est_vx"] == "0" and all(r["est_sd_cx"] != "nan" for r in rows)   # frame 0: the initial state
+    # the tracker's first box (captured at frame 3, confidence 0.003) reaches the filter at frame 6
+    assert [r["est_boxes_used"] for r in rows] == ["0"] * 6 + ["1"] * 3
+    assert [r["est_ewma"] for r in rows] == ["nan"] * 6 + ["1"] * 3

@@ -35,6 +35,7 @@ from __future__ import annotations
 import io
 import math
 import numbers
+import os
 import signal
 import threading
 import time
@@ -63,6 +64,10 @@ TRACKER_CALL_COLUMNS = ("tracker_x", "tracker_y", "tracker_w", "tracker_h",
 EPS = 1e-9  # seconds: tolerance of time comparisons on the camera clock
 
 
+#: set to 1, a run asks its estimator for ``diagnostics()`` (its state, a dict of numbers) after
+#: each of its ticks and writes them as ``est_<key>`` columns of ``<seq>.frames.csv`` (a diagnosis:
+#: results are the same; the live runtime does not record them)
+RECORD_ENV = "MATA_EVAL_RECORD"
 #: ``<seq>.frames.csv`` columns of each ego-motion call: whether its motion is valid, its inlier
 #: count and point noise (px), and whether it found the picture repeated (1 / 0)
 MOTION_CALL_COLUMNS = ("motion_valid", "motion_inliers", "motion_sigma", "motion_unchanged")
@@ -214,6 +219,7 @@ class SequenceRun:
     bad_frames: tuple[tuple[int, str], ...] = ()
     tracker_calls: np.ndarray | None = None
     motion_calls: np.ndarray | None = None
+    estimator_state: Mapping[str, np.ndarray] | None = None   # MATA_EVAL_RECORD: est_<key> columns
 
     def frames_csv(self) -> str:
         cols = ["frame", "scored", "confidence"] + [f"{b}_ms" for b in self.wall_ms] + ["source_frame"]
@@ -221,6 +227,8 @@ class SequenceRun:
             cols += list(TRACKER_CALL_COLUMNS)
         if self.motion_calls is not None:
             cols += list(MOTION_CALL_COLUMNS)
+        state = self.estimator_state or {}
+        cols += [f"est_{key}" for key in state]
         out = io.StringIO()
         out.write(",".join(cols) + "\n")
         conf = [_fmt(v) for v in self.confidence]
@@ -232,6 +240,7 @@ class SequenceRun:
                 cells += [_fmt(v) for v in self.tracker_calls[k]]
             if self.motion_calls is not None:
                 cells += [_fmt(v) for v in self.motion_calls[k]]
+            cells += [_fmt(v[k]) for v in state.values()]
             out.write(",".join(cells) + "\n")
         return out.getvalue()
 
@@ -401,6 +410,9 @@ def sequence_steps(
     wall_ms = {b: np.full(n, np.nan) for b in ("tracker", "egomotion", "estimator") if b in active}
     tracker_calls = np.full((n, len(TRACKER_CALL_COLUMNS)), np.nan)
     motion_calls = np.full((n, len(MOTION_CALL_COLUMNS)), np.nan)
+    record = (estimator is not None and callable(getattr(estimator, "diagnostics", None))
+              and os.environ.get(RECORD_ENV, "") not in ("", "0"))
+    est_state: dict[str, np.ndarray] = {}
     trace: list[TraceEvent] = []
     t_end = (n - 1) / fps
     init_box = start_box(sequence)
@@ -552,6 +564,10 @@ def sequence_steps(
             if b == "estimator" and not first:
                 est_tick = t_pub
 
+        if record and math.isfinite(wall_ms["estimator"][k]):   # MATA_EVAL_RECORD: the filter's state
+            for key, v in estimator.diagnostics().items():
+                est_state.setdefault(key, np.full(n, np.nan))[k] = v
+
         # A tracker with a free start, free before the next frame, starts at once on this one
         # (the newest) instead of waiting for the next; at the next frame it is busy (skip).
         ts = busy_until["tracker"]
@@ -585,7 +601,7 @@ def sequence_steps(
     # due at t_k before the starts of frame k; a zero-latency publish right after its start).
     trace.sort(key=lambda e: (e.frame, round(e.t / EPS)))  # times equal within EPS tie
     return SequenceRun(fps, boxes, scored, confidence, source, wall_ms, tuple(trace), rates, tuple(bad_frames),
-                       tracker_calls, motion_calls if egomotion is not None else None)
+                       tracker_calls, motion_calls if egomotion is not None else None, est_state or None)
 
 
 def _first_frame_at(t: float, fps: float) -> int:

@@ -438,6 +438,21 @@ class HomographyEKF:
         """The newest filter state (x, P, confidence EWMA)."""
         return self._ticks[-1].after
 
+    def diagnostics(self) -> dict[str, float]:
+        """The newest state for a diagnosis (``MATA_EVAL_RECORD=1``: ``est_*`` columns of
+        ``<seq>.frames.csv``): the centre's own velocity (px/s) and standard deviation (px), the
+        number of boxes used since the start (a step up: a box passed the gate; with delay
+        compensation it was applied at its capture tick), the gate's EWMA and q_adapt's
+        innovation average."""
+        s = self._ticks[-1].after
+        x, P = s.x, s.P
+        ewma = s.ewma
+        return {"vx": float(x[13]), "vy": float(x[14]),
+                "sd_cx": 0.5 * math.sqrt(max(P[0, 0] + P[2, 2] + 2 * P[0, 2], 0.0)),
+                "sd_cy": 0.5 * math.sqrt(max(P[1, 1] + P[3, 3] + 2 * P[1, 3], 0.0)),
+                "boxes_used": float(s.n_used), "ewma": math.nan if ewma is None else float(ewma),
+                "nis": float(s.gate.nis)}
+
     # --- ticks --------------------------------------------------------------------------------
 
     def _tick_index(self, t_capture: float, interval: bool) -> int:
