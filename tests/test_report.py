@@ -167,6 +167,8 @@ def test_report_cli_explains_when_it_cannot_evaluate(tmp_path, capsys):
     assert cli.main(["report", str(d)]) == 2
     err = capsys.readouterr().err
     assert "no scores.json and no manifest.json" in err and "mata-eval eval" in err
+    assert cli.main(["report", str(tmp_path / "typo")]) == 2      # not "not a run folder" (QA pass)
+    assert f"{tmp_path / 'typo'}: no such file or folder" in capsys.readouterr().err
 
 
 def test_report_of_an_interrupted_run_names_the_sequences_without_results(tmp_path, capsys):

@@ -355,6 +355,8 @@ def scores_for(run_dir: Path) -> RunScores:
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
     experiment file can still be loaded; otherwise :class:`ScoresUnavailable` says what to do."""
     d = Path(run_dir).resolve()
+    if not d.exists():
+        raise FileNotFoundError(f"{run_dir}: no such file or folder")
     if d.is_file() or (d / SCORES).is_file():
         return load_scores(d)
     manifest = results.read_manifest(d)
