@@ -31,9 +31,10 @@ class VotRealTime:
     class Params:
         time_scale: float = param(1.0, "factor on measured wall times (e.g. 3 emulates a 3x slower machine)")
         timed_blocks: list[str] = param(["tracker"], "blocks whose latency is their measured wall time (others: none)")
-        grace: int = param(1, "a timed block's first calls slower than a frame interval that count as taking one "
-                              "(the VOT toolkit's realtime grace, default 1: model loading and first-run "
-                              "allocations, which a device does before its first frame); 0: none")
+        grace: int = param(1, "a timed block's first calls (initialisation included) slower than a frame "
+                              "interval that count as taking one (the VOT toolkit's realtime grace, default "
+                              "1: model loading and first-run allocations, which a device does before its "
+                              "first frame); 0: none")
 
         def __post_init__(self) -> None:
             if not self.time_scale > 0:
