@@ -10,7 +10,7 @@ import dataclasses
 import os
 import sys
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 from . import __version__
 from .core.errors import ConfigError, Interrupted, UserError
@@ -75,7 +75,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from .score.evaluate import evaluate_experiment
 
     exp = load_experiment(args.experiment)
-    if args.output:
+    if args.output is not None:
+        if not args.output.strip():   # QA pass: `-o ""` fell back to the file's output without a word
+            raise UserError("-o/--output: expected a folder, got an empty name")
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
     checked = _preflight(exp, args.runs, args.debug)
     if checked is None:   # (before the header: it would announce runs that do not exist)
@@ -508,6 +510,9 @@ def cmd_augment(args: argparse.Namespace) -> int:
     except (ConfigError, KeyError, ValueError) as e:
         print(f"mata-eval augment: {e}")
         return 2
+    if not sequences:   # e.g. `--sequences` given no name: nothing to augment is a mistake, not a success
+        print(f"mata-eval augment: no sequence to augment (--sequences {' '.join(args.sequences or [])!s})")
+        return 2
     out = Path(args.out).resolve()
     sources = {Path(args.root).resolve()} if args.root else set()
     sources |= {Path(s.frame_paths[0]).resolve().parent for s in sequences if s.frame_paths}
@@ -763,7 +768,7 @@ def _add_augment(subparsers) -> None:
     p.add_argument("--shapes", nargs="*", choices=SHAPES, help="shape families, cycled over the events")
     p.add_argument("--duration", type=float, default=None, help="seconds per event")
     p.add_argument("--config", help="YAML file holding an occlusion block (the experiment's `occlusion:` keys)")
-    p.add_argument("--quality", type=int, default=95, help="JPEG quality (default 95)")
+    p.add_argument("--quality", type=_quality, default=95, help="JPEG quality 1-100 (default 95)")
     p.add_argument("--force", action="store_true", help="write into OUT even if it is not empty")
     p.set_defaults(func=cmd_augment)
 
@@ -811,7 +816,7 @@ def _add_profile(subparsers) -> None:
     p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
     p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
-    p.add_argument("--threads", type=int, default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
+    p.add_argument("--threads", type=_at_least(0), default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
     p.add_argument("--time-scale", action="append", metavar="[BLOCK=]FACTOR",
                    help="the profile of a device FACTOR times slower (one block, or all), as the live protocol's "
                         "time_scale emulates it: latencies multiplied by FACTOR, and every block run at the "
@@ -891,7 +896,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="camera model: uav123 (default; image-plane motion matched to UAV123) or legacy "
                         "(generator version 3, the target nearly still in the image)")
     p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
-    p.add_argument("--quality", type=int, default=90, help="JPEG quality (default 90)")
+    p.add_argument("--quality", type=_quality, default=90, help="JPEG quality 1-100 (default 90)")
     p.add_argument("--force", action="store_true", help="replace an existing suite in OUT")
     p.set_defaults(func=cmd_synth)
 
@@ -931,6 +936,24 @@ def main(argv: list[str] | None = None) -> int:
         for one in getattr(exc, "errors", None) or (exc,):   # several problems of a file: a line each
             print(f"error: {_one_line(one)}", file=sys.stderr)
         return 2
+
+
+def _quality(text: str) -> int:
+    """argparse type of a JPEG quality: an integer in 1-100 (OpenCV only warns on others)."""
+    q = int(text)
+    if not 1 <= q <= 100:
+        raise argparse.ArgumentTypeError(f"expected a JPEG quality in 1-100, got {q}")
+    return q
+
+
+def _at_least(low: int) -> Callable[[str], int]:
+    """argparse type of an integer >= ``low``."""
+    def parse(text: str) -> int:
+        v = int(text)
+        if v < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {v}")
+        return v
+    return parse
 
 
 def _one_line(exc: BaseException) -> str:

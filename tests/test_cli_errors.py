@@ -3,6 +3,7 @@ exit status is non-zero when any sequence failed."""
 
 from __future__ import annotations
 
+import re
 import textwrap
 
 import numpy as np
@@ -102,3 +103,34 @@ def test_eval_on_a_folder_it_cannot_write_says_what_to_do(tmp_path, capsys, monk
     assert main(["eval", str(run), "--dataset", "folder", "--root", str(tmp_path / "data")]) == 2
     _one_line_error(capsys, "scores.json", str(run), "--no-save")
     assert main(["eval", str(run), "--dataset", "folder", "--root", str(tmp_path / "data"), "--no-save"]) == 0
+
+
+def test_small_cli_mistakes_are_refused(tmp_path, capsys):
+    """QA pass (adversarial): `-o ""` ran into the file's output, `--quality 500` and
+    `--threads -4` were accepted, an empty `--sequences` augmented nothing and succeeded."""
+    from mata_eval.cli import main
+
+    assert main(["run", "quickstart", "-o", ""]) == 2
+    assert "-o/--output: expected a folder, got an empty name" in capsys.readouterr().err
+    for args in (["synth", str(tmp_path / "s"), "--quality", "500"],
+                 ["profile", "quickstart", "--threads", "-4"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(args)
+        assert exit_.value.code == 2
+    assert "expected an integer >= 0, got -4" in capsys.readouterr().err
+
+
+def test_a_hand_edited_scores_file_is_named(tmp_path):
+    """QA pass: a scores.json with a wrong type, a null or another format gave tracebacks or was
+    read as it was."""
+    import json
+
+    from mata_eval.score.evaluate import load_scores
+
+    good = {"format": 1, "name": "r", "path": str(tmp_path), "profile": "default", "layout": "mata",
+            "sequences": {}, "attributes": {}, "summary": {}}
+    for change, words in (({"name": 5}, "'name': expected text, got 5"), ({"format": 99}, "(got 99)"),
+                          ({"sequences": None}, "not a mata-eval scores file")):
+        (tmp_path / "scores.json").write_text(json.dumps({**good, **change}))
+        with pytest.raises(ValueError, match=re.escape(words)):
+            load_scores(tmp_path)

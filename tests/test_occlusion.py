@@ -199,6 +199,9 @@ def test_augment_cli_on_a_synthetic_root(tmp_path, capsys):
         args = parser.parse_args(["augment", str(out), "--root", str(tmp_path / "syn"), "--n-events", "1", "--force"])
         assert args.func(args) == 2 and "overlaps the dataset it reads" in capsys.readouterr().out
     assert frame.read_bytes() == before
+    # nothing to augment is a mistake, not a success (QA pass: `--sequences` with no name wrote 0)
+    args = parser.parse_args(["augment", str(tmp_path / "out3"), "--root", str(tmp_path / "syn"), "--sequences"])
+    assert args.func(args) == 2 and "no sequence to augment" in capsys.readouterr().out
 
 
 def test_every_run_of_an_experiment_sees_the_same_occlusions(tmp_path):

@@ -83,6 +83,13 @@ class RunScores:
 
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "scores") -> "RunScores":
+        if not isinstance(d, Mapping) or d.get("format", SCORES_FORMAT) != SCORES_FORMAT:
+            got = d.get("format") if isinstance(d, Mapping) else type(d).__name__
+            raise ValueError(f"{source}: not a mata-eval scores file of format {SCORES_FORMAT} (got {got!r}); "
+                             "score the run again (mata-eval eval)")
+        for key in ("name", "path", "profile", "layout"):
+            if not isinstance(d.get(key), str):
+                raise ValueError(f"{source}: not a mata-eval scores file ({key!r}: expected text, got {d.get(key)!r})")
         try:
             return cls(
                 name=d["name"], path=d["path"], profile=d["profile"], layout=d["layout"],
@@ -94,7 +101,7 @@ class RunScores:
                 frequencies={k: BlockFrequency.from_dict(v) for k, v in d.get("frequencies", {}).items()},
                 meta=dict(d.get("meta", {})),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:   # a hand-edited file
             raise ValueError(f"{source}: not a mata-eval scores file ({type(exc).__name__}: {exc})") from None
 
 
