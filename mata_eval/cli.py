@@ -192,17 +192,18 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(build_params(cls.Params, values)).sequences())
 
 
-def _run_config(results_dir: str, dataset: str) -> dict[str, Any]:
-    """The resolved configuration in a mata-eval run folder's manifest when its dataset is the
-    plugin ``dataset``; empty otherwise (another layout, another dataset, no manifest)."""
+def _run_manifest(results_dir: str, dataset: str) -> dict[str, Any]:
+    """A mata-eval run folder's manifest when its dataset is the plugin ``dataset`` (its
+    ``config`` the run's resolved configuration); empty otherwise (another layout, another
+    dataset, no manifest)."""
     from .run.results import read_manifest
 
     try:
-        config = (read_manifest(Path(results_dir)) or {}).get("config") or {}
+        manifest = read_manifest(Path(results_dir)) or {}
     except (OSError, ValueError):
         return {}
-    ds = config.get("dataset")
-    return config if isinstance(ds, dict) and ds.get("name") == dataset else {}
+    ds = (manifest.get("config") or {}).get("dataset")
+    return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
 
 
 def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -> list:
@@ -246,18 +247,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
     args.results_dirs = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     try:
-        configs = {d: _run_config(d, args.dataset) for d in args.results_dirs}   # each manifest read once
-        first = configs[args.results_dirs[0]]
+        manifests = {d: _run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
+        first = manifests[args.results_dirs[0]]
         if args.root is None and not sets and first:
             # a run folder of this dataset: the dataset as that run loaded it, not the default
             # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count), its
             # relative paths from the folder it ran in
-            from .run.results import in_run_cwd, read_manifest
+            from .run.results import in_run_cwd
 
-            sets = {k: v for k, v in first["dataset"].items() if k != "name" and v is not None}
+            sets = {k: v for k, v in first["config"]["dataset"].items() if k != "name" and v is not None}
             print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
-            manifest = read_manifest(Path(args.results_dirs[0]))
-            run_cwd = lambda: in_run_cwd(manifest)  # noqa: E731
+            run_cwd = lambda: in_run_cwd(first)  # noqa: E731
         with run_cwd():
             seqs = load_dataset(args.dataset, args.root, sets)
     except (FileNotFoundError, ValueError, KeyError) as exc:
@@ -269,7 +269,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
                 with run_cwd():   # frame 0 of each sequence, for the run's occlusion augmentation
-                    run_seqs = _as_the_run_saw_them(seqs, results_dir, configs[results_dir])
+                    run_seqs = _as_the_run_saw_them(seqs, results_dir, manifests[results_dir].get("config", {}))
                 scores = evaluate_results(results_dir, run_seqs, args.profile, layout="mata")
                 if not args.no_save:
                     try:
@@ -768,7 +768,7 @@ def _add_augment(subparsers) -> None:
     p.add_argument("--shapes", nargs="*", choices=SHAPES, help="shape families, cycled over the events")
     p.add_argument("--duration", type=float, default=None, help="seconds per event")
     p.add_argument("--config", help="YAML file holding an occlusion block (the experiment's `occlusion:` keys)")
-    p.add_argument("--quality", type=_quality, default=95, help="JPEG quality 1-100 (default 95)")
+    p.add_argument("--quality", type=_int_in(1, 100), default=95, help="JPEG quality 1-100 (default 95)")
     p.add_argument("--force", action="store_true", help="write into OUT even if it is not empty")
     p.set_defaults(func=cmd_augment)
 
@@ -816,7 +816,7 @@ def _add_profile(subparsers) -> None:
     p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
     p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
-    p.add_argument("--threads", type=_at_least(0), default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
+    p.add_argument("--threads", type=_int_in(0), default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
     p.add_argument("--time-scale", action="append", metavar="[BLOCK=]FACTOR",
                    help="the profile of a device FACTOR times slower (one block, or all), as the live protocol's "
                         "time_scale emulates it: latencies multiplied by FACTOR, and every block run at the "
@@ -896,7 +896,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="camera model: uav123 (default; image-plane motion matched to UAV123) or legacy "
                         "(generator version 3, the target nearly still in the image)")
     p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
-    p.add_argument("--quality", type=_quality, default=90, help="JPEG quality 1-100 (default 90)")
+    p.add_argument("--quality", type=_int_in(1, 100), default=90, help="JPEG quality 1-100 (default 90)")
     p.add_argument("--force", action="store_true", help="replace an existing suite in OUT")
     p.set_defaults(func=cmd_synth)
 
@@ -938,20 +938,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def _quality(text: str) -> int:
-    """argparse type of a JPEG quality: an integer in 1-100 (OpenCV only warns on others)."""
-    q = int(text)
-    if not 1 <= q <= 100:
-        raise argparse.ArgumentTypeError(f"expected a JPEG quality in 1-100, got {q}")
-    return q
-
-
-def _at_least(low: int) -> Callable[[str], int]:
-    """argparse type of an integer >= ``low``."""
+def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
+    """argparse type of an integer in [low, high] (``high`` None: no upper bound)."""
     def parse(text: str) -> int:
         v = int(text)
-        if v < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {v}")
+        if v < low or (high is not None and v > high):
+            expected = f">= {low}" if high is None else f"in {low}-{high}"
+            raise argparse.ArgumentTypeError(f"expected an integer {expected}, got {v}")
         return v
     return parse
 

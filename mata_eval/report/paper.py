@@ -147,6 +147,11 @@ def _unique(cells: dict, key, run: PlacedRun, table: str) -> None:
     cells[key] = run
 
 
+def _protocol_order(runs: Sequence[PlacedRun]) -> list[str]:
+    """The runs' protocol labels in the paper's order (LTP, then EOP from the fastest rate down)."""
+    return [label for _, label in sorted({(r.protocol_order, r.protocol) for r in runs})]
+
+
 def _tracker_order(runs: Sequence[PlacedRun]) -> list[str]:
     seen: list[str] = []
     for r in runs:
@@ -170,9 +175,8 @@ def protocols_table(runs: Sequence[PlacedRun]) -> Table:
         _unique(cells, (r.protocol, r.tracker, r.mata, r.dataset_key), r, "protocols")
     datasets = _dataset_order(runs)
     label_of = {r.dataset_key: r.dataset for r in runs}
-    protocols = sorted({(r.protocol_order, r.protocol) for r in runs})
     rows, blocks = [], []
-    for _, proto in protocols:
+    for proto in _protocol_order(runs):
         blocks.append(len(rows))
         for tracker in _tracker_order(runs):
             for mata in (False, True):
@@ -273,8 +277,7 @@ def ablation_table(runs: Sequence[PlacedRun]) -> Table:
         return (int(m.group(1)) if m else 10_000 + i)
 
     trackers = _tracker_order(runs)
-    protocols = sorted({r.protocol: r.protocol_order for r in runs}.items(), key=lambda kv: kv[1])
-    protocols = [label for label, _ in protocols]
+    protocols = _protocol_order(runs)
     vary_t, vary_p = len(trackers) > 1, len(protocols) > 1
     ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker),
                                                       protocols.index(i_r[1].protocol), number(i_r)))

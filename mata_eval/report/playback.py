@@ -286,9 +286,9 @@ def _play(run_dirs: Seq[Path], seq: str, out: Path, frames: tuple[int, int] | No
         raise ValueError(f"{out}: a contact sheet is an image; expected a .png or .jpg name")
     if not sheet and out.suffix.lower() not in FOURCC:
         raise ValueError(f"{out}: expected a .mp4 or .avi file name (or --sheet N and a .png name)")
-    sequence = sequence_of_run(Path(run_dirs[0]), seq)
+    sequence = sequence_of_run(run_dirs[0], seq)
     n = len(sequence)
-    tracks = [read_run_track(Path(d), seq, n) for d in run_dirs]
+    tracks = [read_run_track(d, seq, n) for d in run_dirs]
     a, b = frames if frames is not None else (0, n)
     if not 0 <= a < b <= n:
         raise ValueError(f"--frames {a}:{b}: sequence {seq!r} has frames 0:{n}")

@@ -48,7 +48,7 @@ from typing import Any, Callable, Iterator, Mapping
 
 import yaml
 
-from ..core.errors import ConfigError, ConfigErrors, raise_all
+from ..core.errors import ConfigError, raise_all
 from ..core.params import build_params
 from ..core.registry import Registry, load_registry
 from .results import is_file_name
@@ -302,11 +302,8 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
         run_name = "-".join(label_parts) if label_parts else str(doc.get("name") or path.stem)
         try:
             spec = _resolve(run_name, config, cfg_origin, locate, registry)
-        except ConfigErrors as exc:
-            errors += exc.errors
-            continue
         except ConfigError as exc:
-            errors.append(exc)
+            errors += getattr(exc, "errors", (exc,))   # ConfigErrors: its problems, one each
             continue
         runs.append(dataclasses.replace(spec, labels=tuple(label_parts),
                                         optional=bool(optional & set(label_parts))))
