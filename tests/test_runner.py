@@ -348,3 +348,71 @@ def test_a_retuned_preset_does_not_resume_results_of_the_old_values(tmp_path, mo
     with pytest.raises(ResultsConflict, match=r"other preset values of the estimator \(q_v: 100.0 then, 12345.0 now\)"):
         run_experiment(load_experiment(p, registry), **quiet)
     assert {o.status for o in run_experiment(load_experiment(p, registry), force=True, **quiet)} == {"done", "failed"}
+
+
+def test_results_without_a_manifest_are_refused_not_kept(tmp_path):
+    """A run folder holding results but no manifest.json (deleted, or copied in by hand): its
+    results cannot be matched to this configuration, so the run refuses it; --force clears it
+    (QA pass: they were kept as finished and stamped with the new run's manifest)."""
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    run.mkdir(parents=True)
+    (run / "good.txt").write_text("1,2,3,4\n")   # not what this configuration makes
+    with pytest.raises(ResultsConflict, match=r"holds results but no manifest.json.*--force"):
+        run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    assert not (run / "manifest.json").exists() and (run / "good.txt").read_text() == "1,2,3,4\n"
+    outcomes = {o.sequence: o.status for o in run_experiment(exp, jobs=1, force=True, sequences=["nan"],
+                                                             progress=False, log=lambda s: None)}
+    assert outcomes == {"nan": "done"}
+    assert not (run / "good.txt").exists()   # cleared, not kept under the new manifest
+
+
+def test_a_write_error_stops_the_run_at_once_naming_the_file(tmp_path, monkeypatch):
+    """Disk full: the run stops at the first result it cannot write, naming the file and the
+    error (QA pass: every remaining sequence was computed, then failed to write, and the final
+    error named no file); what was written stays, and a rerun resumes."""
+    import errno
+
+    from mata_eval.run.runner import CannotWrite
+
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    replace, refused = os.replace, []
+
+    def disk_full_after_one_sequence(src, dst):
+        if str(dst).endswith(".txt") or not list(run.glob("*.txt")) or str(dst).endswith("manifest.json"):
+            return replace(src, dst)
+        refused.append(os.path.basename(dst))
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(src))
+
+    monkeypatch.setattr(os, "replace", disk_full_after_one_sequence)
+    with pytest.raises(CannotWrite, match=r"\.tmp: No space left on device; the run stops") as exc:
+        run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    assert str(run) in str(exc.value)
+    assert len(refused) == 1   # stopped at the first failure, not one per remaining sequence
+    written = [p.stem for p in run.glob("*.txt")]
+    assert len(written) == 1
+    monkeypatch.setattr(os, "replace", replace)
+    outcomes = {o.sequence: o.status for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
+    assert outcomes.pop(written[0]) == "skipped" and "skipped" not in outcomes.values()
+
+
+def test_a_run_folder_deleted_during_the_run_is_not_silently_made_again(tmp_path, monkeypatch):
+    """The output folder deleted while a run writes it: the run stops with an error naming the
+    lost manifest (QA pass: the next result made the folder again, without manifest or lock)."""
+    import shutil
+
+    from mata_eval.run.runner import CannotWrite
+
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    write = results.write_sequence
+
+    def write_then_delete(*args, **kwargs):
+        write(*args, **kwargs)
+        shutil.rmtree(run)
+
+    monkeypatch.setattr(results, "write_sequence", write_then_delete)
+    with pytest.raises(CannotWrite, match=r"manifest.json is gone .*the run stops"):
+        run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    assert not run.exists()

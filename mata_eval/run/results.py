@@ -183,6 +183,12 @@ def read_failures(run_dir: Path) -> dict[str, str]:
     return out
 
 
+def holds_results(run_dir: Path) -> bool:
+    """Whether the folder holds a file of some sequence (or the run's scores)."""
+    d = Path(run_dir)
+    return (d / SCORES).exists() or any(next(d.glob(f"*{suffix}"), None) for suffix in SEQUENCE_FILES)
+
+
 def clear_run(run_dir: Path) -> None:
     """Remove every sequence's results and the scores of a run folder (its results are of
     another configuration, which must not be mixed with the new one's)."""

@@ -38,6 +38,11 @@ class RunLocked(UserError):
     """Another mata-eval run is writing into the run folder."""
 
 
+class CannotWrite(UserError):
+    """A result cannot be written into its run folder (disk full, read-only, the folder deleted
+    during the run): the run stops at once instead of computing results it cannot keep."""
+
+
 LOCK = ".lock"
 
 
@@ -127,6 +132,12 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise
         old = None
         results.clear_run(out)   # of a configuration no one can tell: replaced, as --force asks
+    if old is None and results.holds_results(out):
+        if not force:
+            raise ResultsConflict(f"{out} holds results but no {results.MANIFEST}: they cannot be matched to this "
+                                  f"configuration; delete them, rerun with --force to replace them, or change "
+                                  f"`output` in {exp.path}")
+        results.clear_run(out)
     if old is not None and old.get("config_hash") != spec.config_hash:
         if not force:
             raise ResultsConflict(
@@ -161,7 +172,12 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
 
 
 def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
-    """Write one returned result into its run folder (atomically, predictions last)."""
+    """Write one returned result into its run folder (atomically, predictions last). Raises
+    :class:`CannotWrite` when the folder lost its manifest (deleted during the run: written
+    again, it would hold results no manifest describes) or a file cannot be written."""
+    if not (out / results.MANIFEST).is_file():
+        raise CannotWrite(f"{out / results.MANIFEST} is gone (the run folder was deleted or emptied during the "
+                          f"run); the run stops without writing {r.run}/{r.sequence}: rerun to start the folder again")
     try:
         if r.reason:
             results.write_failure(out, r.sequence, r.reason, r.traceback)
@@ -171,8 +187,10 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
             else:   # one an earlier attempt skipped is not this result's
                 results.inside(out, r.sequence, ".bad_frames.json").unlink(missing_ok=True)
             results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
-    except OSError as exc:  # e.g. disk full: this sequence is lost, the others go on
-        return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")
+    except OSError as exc:  # e.g. disk full: the next results would be lost too
+        raise CannotWrite(f"cannot write the results of {r.run}/{r.sequence}: {exc.filename or out}: "
+                          f"{exc.strerror or exc}; the run stops (the sequences written stay: rerun the same "
+                          f"command to resume)") from exc
     return SequenceOutcome(r.run, r.sequence, "failed" if r.reason else "done", r.reason,
                            tuple(k for k, _ in r.bad_frames))
 
