@@ -232,7 +232,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     are read once and every folder is one row of the table."""
     from .core.params import parse_key_values
     from .report.overview import render_table
-    from .score.evaluate import detect_layout, evaluate_results, save_scores
+    from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
 
     if len(args.results_dirs) > 1 and (args.name or args.output):
         print("error: --name and --output take one RESULTS_DIR (each folder is named after itself; "
@@ -270,8 +270,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
                 with run_cwd():   # frame 0 of each sequence, for the run's occlusion augmentation
                     run_seqs = _as_the_run_saw_them(seqs, results_dir, manifests[results_dir].get("config", {}))
-                scores = evaluate_results(results_dir, run_seqs, args.profile, layout="mata")
-                if not args.no_save:
+                # (not saved while a run writes the folder: meta["unsaved"], said under the table)
+                scores = evaluate_run(Path(results_dir), run_seqs, args.profile, save=False)
+                if not args.no_save and "unsaved" not in scores.meta:
                     try:
                         print(f"wrote {save_scores(results_dir, scores)}")
                     except OSError as exc:
@@ -316,6 +317,8 @@ def _print_incomplete(runs: Sequence) -> None:
               + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
     for scores in runs:
         where = f" in {scores.path}" if len(runs) > 1 else ""
+        if scores.meta.get("unsaved"):
+            print(f"{scores.path}: {scores.meta['unsaved']}")
         if scores.failures:
             failed = sorted(scores.failures)
             print(f"{len(failed)} sequence(s) failed{where}: {', '.join(failed[:10])}"

@@ -416,3 +416,45 @@ def test_a_run_folder_deleted_during_the_run_is_not_silently_made_again(tmp_path
     with pytest.raises(CannotWrite, match=r"manifest.json is gone .*the run stops"):
         run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
     assert not run.exists()
+
+
+def test_a_scores_json_saved_while_the_run_wrote_the_folder_is_scored_again(tmp_path, monkeypatch):
+    """`report` while `run --no-report` writes the folder: its scores.json, saved after the run
+    removed the old one, covered the sequences finished then; a later report trusted it (QA
+    pass). Now scores.json is used only when it covers the folder's finished and failed
+    sequences, and scored again otherwise."""
+    import shutil
+
+    import mata_eval.run.config
+    from mata_eval.score.evaluate import scores_for
+
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", _registry)   # scores_for loads the file
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    run_experiment(exp, sequences=["good"], jobs=1, progress=False, log=lambda s: None)
+    assert set(scores_for(run).sequences) == {"good"}
+    shutil.copy(run / "scores.json", tmp_path / "partial.json")
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)   # nan done, broken failed
+    shutil.copy(tmp_path / "partial.json", run / "scores.json")       # the report's late save
+    scores = scores_for(run)
+    assert set(scores.sequences) == {"good", "nan"} and set(scores.failures) == {"broken"}
+    assert set(json.loads((run / "scores.json").read_text())["sequences"]) == {"good", "nan"}
+
+
+def test_a_report_of_a_folder_a_run_is_writing_does_not_save_its_partial_scores(tmp_path, capsys, monkeypatch):
+    import mata_eval.run.config
+    from mata_eval import cli
+    from mata_eval.run.runner import lock_run_dir
+
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", _registry)
+
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    run_experiment(exp, sequences=["good"], jobs=1, progress=False, log=lambda s: None)
+    with lock_run_dir(run):   # as a run that is still going holds it
+        assert cli.main(["report", str(run)]) == 0
+        out = capsys.readouterr().out
+        assert "a mata-eval run is writing this folder: scored its sequences finished so far, scores.json not written" in out
+        assert not (run / "scores.json").exists()
+    assert cli.main(["report", str(run)]) == 0
+    assert (run / "scores.json").is_file() and "not written" not in capsys.readouterr().out

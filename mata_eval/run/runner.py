@@ -224,6 +224,22 @@ def lock_run_dir(out: Path) -> Iterator[None]:
         lock.release()
 
 
+def being_written(out: Path) -> bool:
+    """Whether a mata-eval run holds ``<run>/.lock`` now (it is writing the folder). False when
+    the lock cannot be tried (no lock file, a read-only folder)."""
+    if not (Path(out) / LOCK).is_file():
+        return False
+    lock = filelock.FileLock(str(Path(out) / LOCK))
+    try:
+        lock.acquire(timeout=0)
+    except filelock.Timeout:
+        return True
+    except OSError:
+        return False
+    lock.release()
+    return False
+
+
 def select_runs(exp: Experiment, only: list[str] | None) -> list[RunSpec]:
     specs = [r for r in exp.runs if not only or r.name in only]
     if only and len(specs) != len(set(only)):

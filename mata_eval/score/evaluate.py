@@ -325,11 +325,38 @@ def evaluate_results(
     )
 
 
-def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "default") -> RunScores:
-    """Score a mata-eval run folder and write ``<run>/scores.json`` atomically."""
+def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "default",
+                 save: bool = True) -> RunScores:
+    """Score a mata-eval run folder and (``save``) write ``<run>/scores.json`` atomically, unless
+    a run is writing the folder: its scores are then of the sequences finished so far, not
+    written, and ``meta["unsaved"]`` says why."""
+    from ..run.runner import being_written
+
+    busy = being_written(run_dir)
     scores = evaluate_results(run_dir, sequences, profile, layout="mata")
-    save_scores(run_dir, scores)
+    if busy or being_written(run_dir):
+        return dataclasses.replace(scores, meta={**scores.meta, "unsaved": BEING_WRITTEN})
+    if save:
+        save_scores(run_dir, scores)
     return scores
+
+
+BEING_WRITTEN = ("a mata-eval run is writing this folder: scored its sequences finished so far, "
+                 f"{SCORES} not written")
+
+
+def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
+    """Why the scores read from a run folder's scores.json no longer describe its results
+    (sequences finished or failed after they were written: a report made while a run was
+    writing the folder), or None."""
+    d = Path(run_dir)
+    finished = {p.stem for p in d.glob("*.txt") if not p.name.endswith("_time.txt")}
+    scored = set(scores.sequences) | set(scores.meta.get("unmatched_results") or ())
+    if finished != scored:
+        return f"it scores {len(scored)} sequence(s), the folder has {len(finished)} finished"
+    if set(results.read_failures(d)) != set(scores.failures):
+        return f"it lists {len(scores.failures)} failed sequence(s), the folder {len(results.read_failures(d))}"
+    return None
 
 
 def save_scores(out_dir: Path, scores: RunScores) -> Path:
@@ -360,19 +387,28 @@ class ScoresUnavailable(RuntimeError):
 
 def scores_for(run_dir: Path) -> RunScores:
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
-    experiment file can still be loaded; otherwise :class:`ScoresUnavailable` says what to do."""
+    experiment file can still be loaded and it has no scores.json, or one that does not cover
+    its finished and failed sequences (:func:`stale_reason`); otherwise
+    :class:`ScoresUnavailable` says what to do."""
     d = Path(run_dir).resolve()
     if not d.exists():
         raise FileNotFoundError(f"{run_dir}: no such file or folder")
-    if d.is_file() or (d / SCORES).is_file():
+    if d.is_file():
         return load_scores(d)
     manifest = results.read_manifest(d)
+    stale = None
+    if (d / SCORES).is_file():
+        scores = load_scores(d)
+        stale = stale_reason(scores, d) if manifest is not None else None
+        if stale is None:
+            return scores
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
     if manifest is None:
         raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); {hint}")
+    what = f"its {SCORES} is out of date ({stale})" if stale else f"no {SCORES}"
     exp_file = manifest.get("experiment_file")
     if not exp_file or not Path(exp_file).is_file():
-        raise ScoresUnavailable(f"{d}: no {SCORES}, and the experiment file {exp_file!r} named in its "
+        raise ScoresUnavailable(f"{d}: {what}, and the experiment file {exp_file!r} named in its "
                                 f"manifest cannot be read; {hint}")
     from ..run.config import load_experiment
     from ..run.runner import load_sequences
@@ -381,9 +417,9 @@ def scores_for(run_dir: Path) -> RunScores:
         exp = load_experiment(exp_file)
         spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
         if spec is None:
-            raise ScoresUnavailable(f"{d}: no {SCORES}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
+            raise ScoresUnavailable(f"{d}: {what}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
         if spec.config_hash != manifest.get("config_hash"):
-            raise ScoresUnavailable(f"{d}: no {SCORES}, and {exp_file} now describes run {spec.name!r} differently "
+            raise ScoresUnavailable(f"{d}: {what}, and {exp_file} now describes run {spec.name!r} differently "
                                     f"(config hash changed); {hint}")
         return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
 
