@@ -110,7 +110,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"plot: {p}")
     if failed:
         print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json")
-    return 1 if failed else 0
+    unscorable = _print_unscorable(scores)
+    return 1 if failed or unscorable else 0
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False) -> Any:
@@ -319,10 +320,11 @@ def _print_incomplete(runs: Sequence) -> None:
         where = f" in {scores.path}" if len(runs) > 1 else ""
         if scores.meta.get("unsaved"):
             print(f"{scores.path}: {scores.meta['unsaved']}")
-        if scores.failures:
-            failed = sorted(scores.failures)
+        failed = sorted(set(scores.failures) - set(scores.meta.get("unscorable") or ()))
+        if failed:
             print(f"{len(failed)} sequence(s) failed{where}: {', '.join(failed[:10])}"
                   + (" ..." if len(failed) > 10 else "") + "; <run>/<sequence>.failed.json says why")
+        _print_unscorable([scores])
         if scores.missing:
             print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
                   + (" ..." if len(scores.missing) > 10 else ""))
@@ -331,6 +333,17 @@ def _print_incomplete(runs: Sequence) -> None:
             print(f"{sum(bad.values())} unreadable frame(s) skipped and not scored (on_bad_frame: skip){where}: "
                   + ", ".join(f"{seq} ({n})" for seq, n in list(bad.items())[:10]) + (" ..." if len(bad) > 10 else "")
                   + "; see <sequence>.bad_frames.json")
+
+
+def _print_unscorable(runs: Sequence) -> int:
+    """One line per sequence whose results cannot be scored (counted as failed in the table);
+    returns how many."""
+    n = 0
+    for scores in runs:
+        for seq, why in (scores.meta.get("unscorable") or {}).items():
+            print(f"cannot score {scores.name}/{seq}: {why}")
+            n += 1
+    return n
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -458,3 +458,31 @@ def test_a_report_of_a_folder_a_run_is_writing_does_not_save_its_partial_scores(
         assert not (run / "scores.json").exists()
     assert cli.main(["report", str(run)]) == 0
     assert (run / "scores.json").is_file() and "not written" not in capsys.readouterr().out
+
+
+def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp_path, monkeypatch, capsys):
+    """A finished sequence whose files no longer fit (the sequence changed length, a prediction
+    file edited): `run` and `report` name the file and how to recompute it, count it as failed
+    and score the others (QA pass: a traceback, and no sequence scored)."""
+    import mata_eval.run.config
+    from mata_eval import cli
+
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", _registry)
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    assert cli.main(["run", str(exp.path), "-j", "1", "-q"]) == 1   # 'broken' fails
+    frames = (run / "good.frames.csv").read_text().splitlines(keepends=True)
+    (run / "good.frames.csv").write_text("".join(frames[:-1]))   # one frame short of the sequence
+    capsys.readouterr()
+    assert cli.main(["run", str(exp.path), "-j", "1", "-q"]) == 1
+    out = capsys.readouterr().out
+    assert (f"cannot score exp/good: {run / 'good.frames.csv'}: 5 rows, sequence 'good' has 6 frames; "
+            f"to run it again: mata-eval run {exp.path} --runs exp --force --sequences good") in out
+    scores = json.loads((run / "scores.json").read_text())
+    assert set(scores["sequences"]) == {"nan"} and set(scores["failures"]) == {"good", "broken"}
+    (run / "nan.txt").write_text("1,2,3\n")
+    (run / "scores.json").unlink()   # (as a run that writes nan.txt does)
+    assert cli.main(["report", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert f"cannot score exp/nan: {run / 'nan.txt'}:1: expected 4 numbers x,y,w,h, got '1,2,3'" in out
+    assert "1 sequence(s) failed: broken;" in out

@@ -37,7 +37,8 @@ LEGEND = (
                    "(camera clock); in parentheses, 1 / its mean wall time per call on this machine"),
     ("Excl. frames", "frames left out of every metric because their ground truth is empty or missing "
                      "(target fully occluded or out of view, or not annotated)"),
-    ("Failed", "sequences that failed to run: <run>/<sequence>.failed.json says why"),
+    ("Failed", "sequences that failed to run (<run>/<sequence>.failed.json says why) or whose results cannot be "
+               "scored (named under the table)"),
 )
 
 __all__ = ["FORMATS", "LEGEND", "METRIC_LABELS", "TABLES", "challenges_table", "mata_deltas", "overall_table",

@@ -19,7 +19,7 @@ import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -110,12 +110,13 @@ class RunScores:
 
 @dataclass(frozen=True, eq=False)
 class SequenceResult:
-    """What a results folder holds for one sequence."""
+    """What a results folder holds for one sequence (``error``: why its files cannot be read)."""
 
     boxes: np.ndarray
     scored: np.ndarray | None = None
     wall_ms: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = ""
+    error: str = ""
 
 
 def detect_layout(results_dir: Path) -> str:
@@ -186,7 +187,8 @@ def read_frames_csv(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 
 def read_results(results_dir: Path, layout: str = "auto") -> tuple[str, dict[str, SequenceResult]]:
-    """All sequence results of a folder as (layout, {sequence: result})."""
+    """All sequence results of a folder as (layout, {sequence: result}); a sequence whose files
+    cannot be read has its reason in ``error`` (the others are still read)."""
     d = Path(results_dir)
     layout = detect_layout(d) if layout == "auto" else layout
     if layout not in LAYOUTS:
@@ -196,22 +198,34 @@ def read_results(results_dir: Path, layout: str = "auto") -> tuple[str, dict[str
         for sub in sorted(p for p in d.iterdir() if p.is_dir()):
             f = sub / f"{sub.name}_001.txt"
             if f.is_file():
-                out[sub.name] = SequenceResult(results.read_predictions(f), None,
-                                               _read_times(sub / f"{sub.name}_time.txt"), str(f))
+                out[sub.name] = _read_one(f, lambda: SequenceResult(
+                    results.read_predictions(f), None, _read_times(sub / f"{sub.name}_time.txt"), str(f)))
         return layout, out
     for f in sorted(d.glob("*.txt")):
         if f.name.endswith("_time.txt"):
             continue
-        name = f.stem
-        scored, wall = None, {}
-        if layout == "mata":
-            fc = d / f"{name}.frames.csv"
-            if fc.is_file():
-                scored, wall = read_frames_csv(fc)
-        elif layout == "pytracking":
-            wall = _read_times(d / f"{name}_time.txt")
-        out[name] = SequenceResult(results.read_predictions(f), scored, wall, str(f))
+        out[f.stem] = _read_one(f, lambda: _read_sequence(d, f, layout))
     return layout, out
+
+
+def _read_sequence(d: Path, f: Path, layout: str) -> SequenceResult:
+    """The result of the sequence whose prediction file is ``f`` (pysot, pytracking, mata)."""
+    scored, wall = None, {}
+    if layout == "mata":
+        fc = d / f"{f.stem}.frames.csv"
+        if fc.is_file():
+            scored, wall = read_frames_csv(fc)
+    elif layout == "pytracking":
+        wall = _read_times(d / f"{f.stem}_time.txt")
+    return SequenceResult(results.read_predictions(f), scored, wall, str(f))
+
+
+def _read_one(f: Path, read: Callable[[], SequenceResult]) -> SequenceResult:
+    """``read()``, or a result holding the reason its files cannot be read."""
+    try:
+        return read()
+    except (ValueError, UnicodeDecodeError) as exc:
+        return SequenceResult(np.empty((0, 4)), source=str(f), error=str(exc))
 
 
 # --- scoring ---------------------------------------------------------------------------------
@@ -222,8 +236,12 @@ def score_results(
     sequences: Iterable[Sequence],
     profile: str = "default",
     groups: Mapping[str, Iterable[str]] | None = None,
+    unscorable: dict[str, str] | None = None,
 ) -> tuple[dict[str, SequenceScores], dict[str, tuple[str, ...]], Aggregate, list[str], dict[str, BlockFrequency]]:
-    """Score the results of each sequence against its ground truth (annotations only)."""
+    """Score the results of each sequence against its ground truth (annotations only). A
+    sequence whose results cannot be scored (a file that cannot be read, a row count that is
+    not the sequence's) raises ValueError naming the file, or, given the dict ``unscorable``,
+    is recorded there (sequence -> that message) and left out."""
     per_seq: dict[str, SequenceScores] = {}
     attrs: dict[str, tuple[str, ...]] = {}
     missing: list[str] = []
@@ -234,16 +252,13 @@ def score_results(
         if res is None:
             missing.append(seq.name)
             continue
-        if len(res.boxes) == 0 and len(seq):   # every profile: the got10k one truncated it to nothing
-            raise ValueError(f"{res.source}: empty prediction file; sequence {seq.name!r} has {len(seq)} frames")
-        scored = res.scored
-        if scored is not None and len(scored) != len(seq):
-            raise ValueError(f"{res.source}: frames.csv has {len(scored)} rows, sequence {seq.name!r} has {len(seq)} frames")
         try:
-            per_seq[seq.name] = metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile,
-                                                       scored=scored, annotated=seq.annotated)
+            per_seq[seq.name] = _score_one(res, seq, profile)
         except ValueError as exc:
-            raise ValueError(f"{res.source}: {exc}{_blank_lines_note(res.source)}") from None
+            if unscorable is None:
+                raise
+            unscorable[seq.name] = str(exc)
+            continue
         attrs[seq.name] = tuple(sorted(seq.attributes))
         occ = occluded_frame_scores(res, seq, profile)
         if occ is not None:
@@ -254,6 +269,22 @@ def score_results(
     if occluded:
         summary = dataclasses.replace(summary, occluded_frames=metrics.summarize(occluded.values()))
     return per_seq, attrs, summary, missing, metrics.combine_frequencies(freqs)
+
+
+def _score_one(res: SequenceResult, seq: Sequence, profile: str) -> SequenceScores:
+    """The scores of one sequence's results; ValueError naming the file when they cannot be."""
+    if res.error:
+        raise ValueError(res.error)
+    if len(res.boxes) == 0 and len(seq):   # every profile: the got10k one truncated it to nothing
+        raise ValueError(f"{res.source}: empty prediction file; sequence {seq.name!r} has {len(seq)} frames")
+    if res.scored is not None and len(res.scored) != len(seq):
+        raise ValueError(f"{Path(res.source).with_suffix('.frames.csv')}: {len(res.scored)} rows, "
+                         f"sequence {seq.name!r} has {len(seq)} frames")
+    try:
+        return metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile, scored=res.scored,
+                                      annotated=seq.annotated)
+    except ValueError as exc:
+        raise ValueError(f"{res.source}: {exc}{_blank_lines_note(res.source)}") from None
 
 
 def _blank_lines_note(source: str) -> str:
@@ -300,14 +331,19 @@ def evaluate_results(
     sequences = list(sequences)
     layout, found = read_results(d, layout)
     failures = results.read_failures(d) if layout == "mata" else {}
-    per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups)
+    unscorable: dict[str, str] = {}
+    per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups, unscorable)
     manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
+    if manifest.get("experiment_file"):   # what recomputes the sequence
+        unscorable = {k: f"{why}; to run it again: mata-eval run {manifest['experiment_file']} --runs "
+                         f"{manifest.get('run')} --force --sequences {k}" for k, why in unscorable.items()}
     dataset = (manifest.get("config") or {}).get("dataset")
     meta = {
         "experiment": manifest.get("experiment"),
         "config_hash": manifest.get("config_hash"),
         "dataset": dataset.get("name") if isinstance(dataset, dict) else None,
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
+        "unscorable": unscorable,   # sequence -> why its results cannot be scored (counted as failed)
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
     }
     return RunScores(
@@ -318,7 +354,7 @@ def evaluate_results(
         sequences=per_seq,
         attributes=attrs,
         summary=summary,
-        failures=dict(failures),
+        failures={**failures, **{k: f"cannot be scored: {why}" for k, why in unscorable.items()}},
         missing=tuple(m for m in missing if m not in failures),
         frequencies=freqs,
         meta=meta,
@@ -351,11 +387,13 @@ def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     writing the folder), or None."""
     d = Path(run_dir)
     finished = {p.stem for p in d.glob("*.txt") if not p.name.endswith("_time.txt")}
-    scored = set(scores.sequences) | set(scores.meta.get("unmatched_results") or ())
+    unscorable = set(scores.meta.get("unscorable") or ())
+    scored = set(scores.sequences) | set(scores.meta.get("unmatched_results") or ()) | unscorable
     if finished != scored:
         return f"it scores {len(scored)} sequence(s), the folder has {len(finished)} finished"
-    if set(results.read_failures(d)) != set(scores.failures):
-        return f"it lists {len(scores.failures)} failed sequence(s), the folder {len(results.read_failures(d))}"
+    failed = set(results.read_failures(d))
+    if failed != set(scores.failures) - unscorable:
+        return f"it lists {len(set(scores.failures) - unscorable)} failed sequence(s), the folder {len(failed)}"
     return None
 
 
