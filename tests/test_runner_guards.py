@@ -190,3 +190,29 @@ def test_the_exit_status_is_1_when_any_sequence_failed(tmp_path, registry, capsy
     assert "1 sequence(s) failed" in capsys.readouterr().err
     p = _write(tmp_path, "{name: faulty}")
     assert main(["run", str(p), "-j", "1", "-q", "--no-report", "--force"]) == 0
+
+
+class LongNames(Clips):
+    name = "long_names"
+
+    def sequences(self):
+        gt = np.tile([10.0, 10.0, 8.0, 8.0], (5, 1))
+        load = lambda k: np.zeros((32, 48, 3), np.uint8)
+        return [Sequence("short", gt, 30.0, loader=load), Sequence("s" * 226, gt, 30.0, loader=load)]
+
+
+def test_a_sequence_name_too_long_for_its_files_is_refused_before_the_run(tmp_path, registry, capsys, monkeypatch):
+    """`<seq>.bad_frames.json`'s temporary file must fit in 255 bytes: a 226-byte name is one too
+    many (QA pass: validate passed it, its results failed to write, and the table said Failed 0)."""
+    from mata_eval.cli import main
+
+    reg = Registry({**registry.plugins, "dataset": {"long_names": PluginEntry("dataset", "long_names", LongNames, "test", "")}}, ())
+    monkeypatch.setattr(mata_eval.run.config, "load_registry", lambda: reg)
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: long_names\ntracker: faulty\n")
+    for command in ("validate", "run"):
+        assert main([command, str(p)]) == 2
+        err = capsys.readouterr().err
+        assert ("dataset long_names (the run): 1 of 2 sequences cannot name their result files: sequence name "
+                f"'{'s' * 40}'... is too long for its result files (256 bytes") in err
+    assert not (tmp_path / "out").exists()

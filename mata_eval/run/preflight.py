@@ -15,6 +15,7 @@ from typing import Any, Iterable
 
 from ..data.datasets.annotations import DatasetError, MissingFrames
 from .config import Experiment, PluginBlock, RunSpec
+from .results import sequence_name_problem
 
 BLOCK_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")
 
@@ -68,6 +69,10 @@ def check_dataset(block: PluginBlock) -> BaseException | None:
         first = next((s.frame_paths[0] for s in sequences if s.name == bad[0] and s.frame_paths), None)
         hint = f" (looked in {' or '.join(where)})" if where else f" (looked for {first})" if first else ""
         return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}")
+    misnamed = [why for s in sequences if (why := sequence_name_problem(s.name))]
+    if misnamed:
+        return DatasetError(f"{len(misnamed)} of {len(sequences)} sequences cannot name their result files: "
+                            f"{misnamed[0]}" + (f" (and {len(misnamed) - 1} more)" if len(misnamed) > 1 else ""))
     no_start = [s.name for s in sequences if not s.init_box.is_valid]
     if no_start:
         shown = ", ".join(no_start[:5]) + (f" and {len(no_start) - 5} more" if len(no_start) > 5 else "")

@@ -119,6 +119,24 @@ SCORES = "scores.json"  # the run's scores (mata_eval.score.evaluate), stale onc
 SEQUENCE_FILES = (".txt", ".frames.csv", ".trace.csv", ".failed.json", ".bad_frames.json")
 
 
+#: the longest file name a file system takes (bytes; ext4, xfs, btrfs, APFS, NTFS in characters)
+NAME_MAX = 255
+#: what atomic_write_text adds to a file's name for its temporary file (".", ".", 8 random, ".tmp")
+_TMP_EXTRA = 14
+
+
+def sequence_name_problem(seq: str) -> str | None:
+    """Why ``seq`` cannot name its files in a run folder (not one file name, or too long for
+    the longest of them and its temporary file), or None."""
+    if not is_file_name(seq):
+        return f"{seq!r} is not a single file name"
+    longest = max(len(f"{seq}{suffix}".encode()) for suffix in SEQUENCE_FILES) + _TMP_EXTRA
+    if longest > NAME_MAX:
+        return (f"sequence name {seq[:40]!r}... is too long for its result files ({longest} bytes with "
+                f"{max(SEQUENCE_FILES, key=len)!r} and the temporary file's extra characters; at most {NAME_MAX})")
+    return None
+
+
 def invalidate_scores(run_dir: Path) -> None:
     """Remove the run's scores.json: a sequence of it is being rewritten, so the scores no longer
     describe the predictions (a report then scores the run again instead of showing old numbers)."""
