@@ -232,7 +232,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     """Score one or more results folders against one dataset, in one process: the annotations
     are read once and every folder is one row of the table."""
     from .core.params import parse_key_values
-    from .report.overview import render_table
+    from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
 
     if len(args.results_dirs) > 1 and (args.name or args.output):
@@ -290,6 +290,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         return 2
     if args.output:
         print(f"wrote {save_scores(Path(args.output), all_scores[0])}")
+    all_scores = distinct_names(all_scores)   # two folders of one run name: two labels
     print(render_table(all_scores, "terminal"))
     if args.challenges:
         print(render_table(all_scores, "terminal", table="challenges"))
@@ -361,7 +362,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     """The run tables (and, with ``--out``, their files and plots) of ``run_dirs``."""
-    from .report.overview import FORMATS, TABLES, render_table
+    from .report.overview import FORMATS, TABLES, distinct_names, render_table
     from .report.plots import plot_curves
     from .score.evaluate import ScoresUnavailable, scores_for
 
@@ -372,6 +373,7 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
         except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
+    runs = distinct_names(runs)   # two folders of one run name (two outputs of one experiment): two labels
     fmts = FORMATS if args.format == "all" else (args.format,)
     tables = TABLES if args.table == "both" else (args.table,)
     out = Path(args.out) if args.out else None
@@ -461,6 +463,7 @@ def cmd_paper(args: argparse.Namespace) -> int:
 
 def cmd_per_sequence(args: argparse.Namespace) -> int:
     """``mata-eval report --per-sequence A B``: the per-sequence comparison of two runs."""
+    from .report.overview import distinct_names
     from .report.paper import sequence_comparison
     from .report.tables import render
     from .score.evaluate import ScoresUnavailable, scores_for
@@ -470,7 +473,7 @@ def cmd_per_sequence(args: argparse.Namespace) -> int:
         print(f"error: --per-sequence compares exactly two run folders, got {len(args.run_dirs)}", file=sys.stderr)
         return 2
     try:
-        t = sequence_comparison(scores_for(Path(args.run_dirs[0])), scores_for(Path(args.run_dirs[1])))
+        t = sequence_comparison(*distinct_names([scores_for(Path(d)) for d in args.run_dirs]))
     except (ScoresUnavailable, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

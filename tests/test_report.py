@@ -215,3 +215,15 @@ def test_the_hz_columns_keep_one_order_after_a_round_trip_through_scores_json(tm
     assert list(back.frequencies) != list(r.frequencies)   # the file's order differs ...
     header = overview.render_table([back], "csv").splitlines()[0]
     assert header.index("tracker") < header.index("egomotion") < header.index("estimator")  # ... the table's not
+
+
+def test_two_run_folders_of_one_run_name_get_two_row_labels(tmp_path, capsys):
+    """One experiment written to two outputs: `report out1/run out2/run` printed two rows both
+    labelled `run` (QA pass); each label now ends with the part of its path that differs."""
+    for out in ("out1", "out2"):
+        d, seqs = toy_run_folder(tmp_path / out)
+        evaluate.evaluate_run(d, seqs)
+    assert cli.main(["report", str(tmp_path / "out1" / "run"), str(tmp_path / "out2" / "run"), "--format", "csv"]) == 0
+    rows = [line.split(",")[0] for line in capsys.readouterr().out.splitlines()[1:3]]
+    assert rows == ["run (out1)", "run (out2)"]
+    assert evaluate.load_scores(tmp_path / "out1" / "run").name == "run"   # only the table's label

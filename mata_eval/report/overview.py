@@ -9,6 +9,7 @@ frequencies as scheduled Hz (wall-clock Hz)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -63,6 +64,27 @@ def _in_order(keys: Iterable[Iterable[str]], canonical: Iterable[str]) -> list[s
 def _blocks(runs: Sequence[RunScores]) -> list[str]:
     """The blocks with a Hz column: tracker, egomotion, estimator, then any other."""
     return _in_order((r.frequencies for r in runs), _BLOCK_ORDER)
+
+
+def distinct_names(runs: Sequence[RunScores]) -> list[RunScores]:
+    """``runs`` with each name that several of them share followed by the end of its folder's
+    path that tells them apart (``mata (out1)``, ``mata (out2)``): two run folders of one
+    experiment written to two outputs are two rows, not two rows of one label."""
+    out = list(runs)
+    for name in {r.name for r in runs}:
+        same = [i for i, r in enumerate(runs) if r.name == name]
+        if len(same) < 2:
+            continue
+        parts = [Path(runs[i].path).parts for i in same]
+        if len({p[-1:] for p in parts}) == 1:   # one folder name (the run's): its parents differ
+            parts = [p[:-1] for p in parts]
+        for k in range(1, max(map(len, parts)) + 1):
+            tails = [str(Path(*p[-k:])) for p in parts]
+            if len(set(tails)) == len(tails):
+                for i, tail in zip(same, tails):
+                    out[i] = dataclasses.replace(runs[i], name=f"{name} ({tail})")
+                break
+    return out
 
 
 def _group_names(runs: Sequence[RunScores]) -> list[str]:
