@@ -247,7 +247,7 @@ def test_a_worker_killed_by_the_os_fails_only_its_sequence(tmp_path, monkeypatch
     outcomes = {o.sequence: o for o in run_experiment(exp, jobs=2, progress=False, log=lambda s: None)}
     assert {k: o.status for k, o in outcomes.items()} == {"s0": "done", "s1": "done", "s2": "failed",
                                                            "s3": "done", "s4": "done"}
-    assert "worker process died" in outcomes["s2"].reason
+    assert "worker process died (signal 9 SIGKILL) while running" in outcomes["s2"].reason   # how (QA pass)
     failure = json.loads((tmp_path / "out" / "exp" / "s2.failed.json").read_text())
     assert "killed by the operating system" in failure["reason"]
 

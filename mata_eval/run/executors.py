@@ -25,8 +25,16 @@ from .tasks import SequenceResult, Task, failed, run_task
 
 Done = Callable[[Task, list[SequenceResult]], None]
 
-WORKER_DIED = ("worker process died while running this sequence (killed by the operating system, "
+WORKER_DIED = ("worker process died{how} while running this sequence (killed by the operating system, "
                "e.g. out of memory, or a crash in native code); retried once")
+
+
+def worker_died(exitcodes: list[int]) -> str:
+    """The failure reason of a sequence whose worker died, with how it ended (``exitcodes``:
+    the pool's workers' non-zero exit codes, minus a signal's number)."""
+    how = ", ".join(f"signal {-c} {signal.Signals(-c).name}" if c < 0 and -c in signal.valid_signals()
+                    else f"exit code {c}" for c in dict.fromkeys(exitcodes))
+    return WORKER_DIED.format(how=f" ({how})" if how else "")
 
 
 class Executor(Protocol):
@@ -118,15 +126,18 @@ class LocalExecutor:
             return
         # A worker killed by the OS breaks the pool and every task in flight with it: rerun their
         # runs one process each, which finds the run that kills its process; the others complete.
-        for task in self._pool(exp, tasks, self.workers, done):
+        lost, _ = self._pool(exp, tasks, self.workers, done)
+        for task in lost:
             for run in task.runs:
                 alone = dataclasses.replace(task, runs=(run,))
-                if self._pool(exp, [alone], 1, done):
-                    done(alone, failed(alone, WORKER_DIED))
+                lost_again, exitcodes = self._pool(exp, [alone], 1, done)
+                if lost_again:
+                    done(alone, failed(alone, worker_died(exitcodes)))
 
     @staticmethod
-    def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> list[Task]:
-        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool. A stop
+    def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> tuple[list[Task], list[int]]:
+        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool and the
+        non-zero exit codes of its workers (how the one that broke it died). A stop
         signal is taken between two waits (:func:`stop.deferred`), never inside the pool's own
         code. On any exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the
         workers killed, so that it propagates at once (leaving the pool would wait for every
@@ -141,6 +152,7 @@ class LocalExecutor:
         with stop.deferred(), (_opencv_threads_stopped() if method == "fork" else contextlib.nullcontext()):
             pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
                                        initargs=(parent,))
+            workers = pool._processes   # pid -> process (no public handle; shutdown drops the attribute)
             try:
                 futures = {pool.submit(run_task, exp, task): task for task in tasks}
                 waiting = set(futures)
@@ -160,7 +172,7 @@ class LocalExecutor:
                 raise
             finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
                 pool.shutdown(wait=True, cancel_futures=True)
-        return lost
+        return lost, [w.exitcode for w in workers.values() if w.exitcode] if lost else []
 
 
 class RayExecutor:
