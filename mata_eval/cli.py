@@ -382,11 +382,11 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     for table in tables:
         for fmt in fmts:
             text = render_table(runs, fmt, table)
-            if out and fmt != "terminal":
+            if out:   # every format asked, the terminal's too (<table>.txt: the default format)
                 path = out / f"{table}.{EXTENSIONS[fmt]}"
                 path.write_text(text)
                 print(f"wrote {path}")
-            elif not out or fmt == "terminal":
+            if not out or fmt == "terminal":
                 print(text)
                 if table == "overall" and fmt == "terminal":
                     _print_deltas(runs)
@@ -747,7 +747,8 @@ def _add_report(subparsers) -> None:
         description="Report one or more run folders side by side. A run folder without scores.json is "
                     "scored first when its experiment file is still readable.")
     p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run folders (or scores.json files)")
-    p.add_argument("--out", help="write tables and success / precision / NT2F plots (PNG) into this folder")
+    p.add_argument("--out", help="write tables (<table>.txt, .md, .csv or .tex, as --format says) and success / "
+                                 "precision / NT2F plots (PNG) into this folder")
     p.add_argument("--format", choices=FORMATS + ("all",), default="terminal",
                    help="table format (default: %(default)s; with --out, 'all' writes every format)")
     p.add_argument("--table", choices=TABLES + ("both",), default="overall",

@@ -227,3 +227,22 @@ def test_two_run_folders_of_one_run_name_get_two_row_labels(tmp_path, capsys):
     rows = [line.split(",")[0] for line in capsys.readouterr().out.splitlines()[1:3]]
     assert rows == ["run (out1)", "run (out2)"]
     assert evaluate.load_scores(tmp_path / "out1" / "run").name == "run"   # only the table's label
+
+
+def test_report_out_writes_the_table_of_the_default_format_too(tmp_path, capsys):
+    """`report RUN --out DIR` wrote only the plots, though --out says tables too (QA pass)."""
+    d, seqs = toy_run_folder(tmp_path)
+    evaluate.evaluate_run(d, seqs)
+    assert cli.main(["report", str(d), "--out", str(tmp_path / "rep"), "--no-plots"]) == 0
+    table = (tmp_path / "rep" / "overall.txt").read_text()
+    assert table.splitlines()[0].split()[:2] == ["Run", "Seqs"] and "95.2" in table
+    assert "95.2" in capsys.readouterr().out   # still printed
+
+
+def test_an_unreadable_scores_json_says_what_to_do(tmp_path, capsys):
+    d, _ = toy_run_folder(tmp_path)
+    for text in ("{", "\xff"):
+        (d / "scores.json").write_text(text, encoding="latin-1")
+        assert cli.main(["report", str(d)]) == 2
+        err = capsys.readouterr().err
+        assert f"{d / 'scores.json'}: invalid JSON" in err and "delete it (report then scores a run folder again)" in err

@@ -32,6 +32,8 @@ from .metrics import Aggregate, BlockFrequency, SequenceScores
 SCORES = results.SCORES
 LAYOUTS = ("mata", "pysot", "got10k", "pytracking")
 SCORES_FORMAT = 1
+#: what to do about a scores file that cannot be read
+REDO = "delete it (report then scores a run folder again) or score the folder again with `mata-eval eval`"
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,11 +87,11 @@ class RunScores:
     def from_dict(cls, d: Mapping, source: str = "scores") -> "RunScores":
         if not isinstance(d, Mapping) or d.get("format", SCORES_FORMAT) != SCORES_FORMAT:
             got = d.get("format") if isinstance(d, Mapping) else type(d).__name__
-            raise ValueError(f"{source}: not a mata-eval scores file of format {SCORES_FORMAT} (got {got!r}); "
-                             "score the run again (mata-eval eval)")
+            raise ValueError(f"{source}: not a mata-eval scores file of format {SCORES_FORMAT} (got {got!r}); {REDO}")
         for key in ("name", "path", "profile", "layout"):
             if not isinstance(d.get(key), str):
-                raise ValueError(f"{source}: not a mata-eval scores file ({key!r}: expected text, got {d.get(key)!r})")
+                raise ValueError(f"{source}: not a mata-eval scores file ({key!r}: expected text, got "
+                                 f"{d.get(key)!r}); {REDO}")
         try:
             return cls(
                 name=d["name"], path=d["path"], profile=d["profile"], layout=d["layout"],
@@ -102,7 +104,7 @@ class RunScores:
                 meta=dict(d.get("meta", {})),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:   # a hand-edited file
-            raise ValueError(f"{source}: not a mata-eval scores file ({type(exc).__name__}: {exc})") from None
+            raise ValueError(f"{source}: not a mata-eval scores file ({type(exc).__name__}: {exc}); {REDO}") from None
 
 
 # --- reading results -------------------------------------------------------------------------
@@ -410,9 +412,9 @@ def load_scores(run_dir: Path) -> RunScores:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no scores file (run `mata-eval eval` or `mata-eval run` first)")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: invalid JSON ({exc})") from None
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: invalid JSON ({exc}); {REDO}") from None
     return RunScores.from_dict(data, source=str(path))
 
 
