@@ -226,7 +226,9 @@ def _read_one(f: Path, read: Callable[[], SequenceResult]) -> SequenceResult:
     """``read()``, or a result holding the reason its files cannot be read."""
     try:
         return read()
-    except (ValueError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:   # (a ValueError that names no file)
+        return SequenceResult(np.empty((0, 4)), source=str(f), error=f"{f.with_suffix('')}.*: not text ({exc})")
+    except ValueError as exc:   # names the file and line
         return SequenceResult(np.empty((0, 4)), source=str(f), error=str(exc))
 
 
@@ -363,6 +365,10 @@ def evaluate_results(
     )
 
 
+BEING_WRITTEN = ("a mata-eval run is writing this folder: scored its sequences finished so far, "
+                 f"{SCORES} not written")
+
+
 def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "default",
                  save: bool = True) -> RunScores:
     """Score a mata-eval run folder and (``save``) write ``<run>/scores.json`` atomically, unless
@@ -377,10 +383,6 @@ def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "d
     if save:
         save_scores(run_dir, scores)
     return scores
-
-
-BEING_WRITTEN = ("a mata-eval run is writing this folder: scored its sequences finished so far, "
-                 f"{SCORES} not written")
 
 
 def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
