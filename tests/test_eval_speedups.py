@@ -103,12 +103,20 @@ def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsy
     assert "--name and --output take one RESULTS_DIR" in capsys.readouterr().err
     # a folder that cannot be scored in the middle: said, and the others scored (QA pass: the
     # call stopped there, and the last folder was never scored)
-    bad = tmp_path / "DTB70" / "Broken"
-    shutil.copytree(both[1], bad)
-    (bad / "Animal1.txt").write_text("1,2,3\n")
+    bad = tmp_path / "DTB70" / "Empty"
+    bad.mkdir()
     assert cli.main(["eval", both[0], str(bad), both[1], *common]) == 2
     out, err = capsys.readouterr()
-    assert set(_rows(out)) == {"SiamAPN++", "SiamAPN"} and "Animal1.txt" in err
+    assert set(_rows(out)) == {"SiamAPN++", "SiamAPN"} and f"{bad}: no results found" in err
+    # a file that cannot be scored: its sequence is named and counted as failed, and the folder's
+    # other sequences are scored (QA pass: the folder was not scored at all)
+    broken = tmp_path / "DTB70" / "Broken"
+    shutil.copytree(both[1], broken)
+    (broken / "Animal1.txt").write_text("1,2,3\n")
+    assert cli.main(["eval", str(broken), *common]) == 0
+    out = capsys.readouterr().out
+    assert f"cannot score Broken/Animal1: {broken / 'Animal1.txt'}:1: expected 4 numbers" in out
+    assert _rows(out)["Broken"][0] == "69" and _rows(out)["Broken"][-1] == "1"   # Seqs, Failed
 
 
 def test_version_answers_without_importing_the_packages():
