@@ -364,3 +364,17 @@ def test_failed_sequences_are_noted_under_the_table(tmp_path):
     t = build_table("protocols", load_runs([d]))
     assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (1 sequences)"]
     assert "- a: 1 failed" in render(t, "markdown")
+
+
+def test_mata_minus_baseline_pairs_a_run_of_an_installed_plugin_with_its_baseline(tmp_path):
+    """QA pass: a third-party block B or C is recorded as `plugin_versions` in the MATA run's
+    configuration only; the run then found no baseline and left the table."""
+    from mata_eval.report.overview import mata_deltas
+
+    base = make_run(tmp_path, "1-baseline", config(), {"s": 5})
+    mata = make_run(tmp_path, "2-orb", config(mata=True, egomotion={"name": "orb_ransac"},
+                                             plugin_versions={"qa-myblocks": "0.1.0"}), {"s": 8})
+    t = mata_deltas([r.scores for r in load_runs([base, mata])])
+    assert t is not None
+    (row,) = t.rows
+    assert row[2] == "2-orb - 1-baseline" and row[3] == "+15.0"   # SR 8/20 - 5/20
