@@ -417,3 +417,18 @@ def test_ablation_names_a_block_b_of_its_own_and_a_plugin_label(tmp_path, monkey
         "4": "estimator Hold filter; block B: grid_lk"}
     one = md_rows(render(build_table("ablation", load_runs(dirs[1:2])), "markdown"))
     assert one[2][4] == "MATA, the paper's block C (preset paper); block B: ORB+RANSAC"   # not mata-eval's
+
+
+def test_an_estimator_ablation_that_is_not_a_classmethod_is_named(tmp_path, monkeypatch):
+    """QA pass: ablation() written as an instance method gave a raw TypeError from the report."""
+    (tmp_path / "qa_abl_instance.py").write_text(
+        "from dataclasses import dataclass\n"
+        "class Hold:\n    name = 'hold'\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n"
+        "    def ablation(self, params, egomotion): return (egomotion, True, 'hold')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": "qa_abl_instance:Hold"}), {"s": 5})
+    with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_instance:Hold': ablation\(params, egomotion\) "
+                                             r"is not a classmethod; expected @classmethod .* \(ego-motion used"):
+        build_table("ablation", load_runs([d]))

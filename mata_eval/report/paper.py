@@ -22,6 +22,7 @@ Rendering: Markdown and LaTeX booktabs by :mod:`.tables`, HTML by :mod:`.html`.
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
 from dataclasses import dataclass
@@ -250,12 +251,25 @@ def ablation_marks(config: Mapping[str, Any], name_egomotion: bool = False) -> t
     if not hasattr(ecls, "ablation"):
         ego, ekf, details = egomotion, False, f"estimator {plugin_label('estimator', est)}"
     else:
-        ego, ekf, details = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+        ego, ekf, details = _estimator_ablation(ecls, est, egomotion)
     if ego and (name_egomotion or not _own_plugin(_plugin_class("egomotion", config.get("egomotion")))):
         details += f"; block B: {plugin_label('egomotion', config.get('egomotion'))}"
     if ego and (changed := _non_defaults("egomotion", config.get("egomotion"))):
         details += f"; {config['egomotion']['name']}: {changed}"   # a block B setting is a configuration too
     return ego, ekf, score, details
+
+
+def _estimator_ablation(ecls: type, est: Mapping[str, Any], egomotion: bool) -> tuple[bool, bool, str]:
+    """The estimator class's ``ablation(params, egomotion)``: a classmethod returning (ego-motion
+    used, EKF used, description); anything else is a :class:`PlacementError` naming the plugin."""
+    expected = "expected @classmethod ablation(cls, params, egomotion) -> (ego-motion used, EKF used, description)"
+    if not isinstance(inspect.getattr_static(ecls, "ablation"), (classmethod, staticmethod)):
+        raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) is not a classmethod; "
+                             f"{expected}")
+    out = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+    if not (isinstance(out, tuple) and len(out) == 3 and isinstance(out[2], str)):
+        raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) returned {out!r}; {expected}")
+    return bool(out[0]), bool(out[1]), out[2]
 
 
 def _own_plugin(cls: Any) -> bool:
