@@ -491,3 +491,45 @@ def test_an_empty_estimate_box_is_a_lost_target_not_an_error():
     run = run_sequence(make_sequence(6), FrameTracker(), None, OddEstimator(lambda b: Estimate(Box(b.x, b.y, 0.0, 0.0))),
                        LTP(), np.random.default_rng(0))
     assert run.boxes[5, 2] == 0.0 and run.boxes[5, 3] == 0.0
+
+
+class DiagEstimator(LogEstimator):
+    """LogEstimator whose diagnostics() return ``diag`` (or raise it)."""
+
+    name = "diag_est"
+
+    def __init__(self, diag):
+        super().__init__()
+        self.diag = diag
+
+    def diagnostics(self):
+        if isinstance(self.diag, Exception):
+            raise self.diag
+        return self.diag
+
+
+@pytest.mark.parametrize("diag, words", [
+    (KeyError("boom"), "diagnostics(): KeyError: 'boom'"),
+    (None, "diagnostics() returned NoneType; expected a dict of str -> number"),
+    ([1.0], "diagnostics() returned list; expected a dict of str -> number"),
+    ({"state": "coasting"}, "diagnostics() key 'state': 'coasting' is not a number"),
+    ({"v": [1.0, 2.0]}, "diagnostics() key 'v': [1.0, 2.0] is not a number"),
+    ({"a,b": 1.0}, "diagnostics() key 'a,b': expected letters, digits and _ (a frames.csv column name)"),
+    ({"c\nd": 1.0}, "diagnostics() key 'c\\nd': expected letters, digits and _"),
+    ({"cd\n": 1.0}, "diagnostics() key 'cd\\n': expected letters, digits and _"),
+    ({1: 1.0}, "diagnostics() key 1: expected letters, digits and _"),
+])
+def test_a_diagnostics_that_breaks_its_contract_names_the_estimator_and_the_key(monkeypatch, diag, words):
+    """QA pass: diagnostics() raising or returning a str, None or a list failed the sequence with a
+    bare reason; a key holding ',' or a newline corrupted frames.csv's header (IndexError later)."""
+    monkeypatch.setenv("MATA_EVAL_RECORD", "1")
+    with pytest.raises(BlockError, match=rf"^estimator 'diag_est' failed at frame 0 .*: {re.escape(words)}"):
+        run_sequence(make_sequence(6), FrameTracker(), None, DiagEstimator(diag), LTP(), np.random.default_rng(0))
+
+
+def test_diagnostics_numbers_and_flags_are_recorded(monkeypatch):
+    monkeypatch.setenv("MATA_EVAL_RECORD", "1")
+    run = run_sequence(make_sequence(3), FrameTracker(), None, DiagEstimator({"used": True, "n": np.int64(2)}),
+                       LTP(), np.random.default_rng(0))
+    rows = list(csv.DictReader(io.StringIO(run.frames_csv())))
+    assert [(r["est_used"], r["est_n"]) for r in rows] == [("1", "2")] * 3

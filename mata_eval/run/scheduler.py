@@ -36,6 +36,7 @@ import io
 import math
 import numbers
 import os
+import re
 import signal
 import threading
 import time
@@ -575,7 +576,7 @@ def sequence_steps(
                 est_tick = t_pub
 
         if record and math.isfinite(wall_ms["estimator"][k]):   # MATA_EVAL_RECORD: the filter's state
-            for key, v in estimator.diagnostics().items():
+            for key, v in _diagnostics(alarm, estimator, k, tk).items():
                 est_state.setdefault(key, np.full(n, np.nan))[k] = v
 
         # A tracker with a free start, free before the next frame, starts at once on this one
@@ -624,6 +625,33 @@ def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> l
     i0, i1 = consumed[name], board.visible(t, delay)
     consumed[name] = max(i0, i1)
     return [Stamped(board.values[i], board.t_capture[i], board.t_publish[i] + delay) for i in range(i0, i1)]
+
+
+#: an ``est_<key>`` column name of frames.csv
+_DIAGNOSTICS_KEY = re.compile(r"[A-Za-z0-9_]+")
+
+
+def _diagnostics(alarm: "_CallAlarm", estimator: Any, k: int, t: float) -> dict[str, float]:
+    """The estimator's ``diagnostics()``, checked: a dict of str (letters, digits, _: a frames.csv
+    column name) -> number (a bool is 0 / 1); anything else is a :class:`BlockError` naming the
+    estimator and the key."""
+    def fail(message: str) -> BlockError:
+        return BlockError("estimator", k, t, message, plugin_name(estimator))
+
+    try:
+        out = alarm.call(estimator.diagnostics)
+    except CallTimeout as exc:
+        raise fail(f"diagnostics(): {exc}") from None
+    except Exception as exc:
+        raise fail(f"diagnostics(): {type(exc).__name__}: {exc}") from exc
+    if not isinstance(out, Mapping):
+        raise fail(f"diagnostics() returned {type(out).__name__}; expected a dict of str -> number")
+    for key, v in out.items():
+        if not (isinstance(key, str) and _DIAGNOSTICS_KEY.fullmatch(key)):
+            raise fail(f"diagnostics() key {key!r}: expected letters, digits and _ (a frames.csv column name)")
+        if not isinstance(v, numbers.Real):
+            raise fail(f"diagnostics() key {key!r}: {v!r} is not a number")
+    return {key: float(v) for key, v in out.items()}
 
 
 class CallTimeout(BaseException):
