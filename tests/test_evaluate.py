@@ -129,6 +129,12 @@ def test_bad_files_get_clear_errors(run_dir):
 
     (d / "car1.frames.csv").write_text("frame,scored\n0,maybe\n")
     assert re.search(r"car1\.frames\.csv:2: expected 1/0 or true/false", unscorable())
+    # a row shorter than the header (QA pass: a raw IndexError while scoring and reporting)
+    (d / "car1.frames.csv").write_text("frame,scored,tracker_ms,est_a,b\n0,1,5.0,1\nd,1,1\n")
+    assert re.search(r"car1\.frames\.csv:2: expected 5 comma-separated values as in the header \(line 1\), got 4",
+                     unscorable())
+    (d / "car1.frames.csv").write_text("frame,tracker_ms,scored\n0,5.0,1\n1\n")
+    assert re.search(r"car1\.frames\.csv:3: expected 3 comma-separated values .* got 1", unscorable())
     (d / "car1.frames.csv").unlink()
     (d / "car1.txt").write_text("1,2,3\n")
     assert re.search(r"car1\.txt:1: expected 4 numbers", unscorable())

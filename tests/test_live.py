@@ -254,7 +254,7 @@ def test_a_failing_block_stops_the_run_and_names_itself():
     # 5 fps: the tracker's first call after its init is on frame 1 (200 ms) even if its thread
     # starts 100+ ms late on a loaded machine (seen at 20 fps: 'frame 3')
     t0 = time.perf_counter()
-    with pytest.raises(BlockError, match=r"tracker failed at frame 1 .*RuntimeError: boom"):
+    with pytest.raises(BlockError, match=r"tracker 'Broken' failed at frame 1 .*RuntimeError: boom"):
         run_live(sequence(100, FPS), Broken([0.0]), EgoMotion(0.001), warmup=0)
     assert time.perf_counter() - t0 < 2.0  # it did not wait for the 20 s sequence
 
@@ -268,7 +268,7 @@ def test_a_live_tracker_output_is_checked_as_the_scheduler_checks_it(value, word
         def track(self, image, prior=None):
             return value
 
-    with pytest.raises(BlockError, match=rf"tracker failed at frame \d+ .*{re.escape(words)}"):
+    with pytest.raises(BlockError, match=rf"tracker 'Bad' failed at frame \d+ .*{re.escape(words)}"):
         run_live(sequence(100, FPS), Bad([0.0]), EgoMotion(0.001), warmup=0)
 
 

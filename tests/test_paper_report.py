@@ -364,3 +364,71 @@ def test_failed_sequences_are_noted_under_the_table(tmp_path):
     t = build_table("protocols", load_runs([d]))
     assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (1 sequences)"]
     assert "- a: 1 failed" in render(t, "markdown")
+
+
+def test_mata_minus_baseline_pairs_a_run_of_an_installed_plugin_with_its_baseline(tmp_path):
+    """QA pass: a third-party block B or C is recorded as `plugin_versions` in the MATA run's
+    configuration only; the run then found no baseline and left the table."""
+    from mata_eval.report.overview import mata_deltas
+
+    base = make_run(tmp_path, "1-baseline", config(), {"s": 5})
+    mata = make_run(tmp_path, "2-orb", config(mata=True, egomotion={"name": "orb_ransac"},
+                                             plugin_versions={"qa-myblocks": "0.1.0"}), {"s": 8})
+    t = mata_deltas([r.scores for r in load_runs([base, mata])])
+    assert t is not None
+    (row,) = t.rows
+    assert row[2] == "2-orb - 1-baseline" and row[3] == "+15.0"   # SR 8/20 - 5/20
+
+
+def test_ablation_keeps_clean_and_occluded_runs_apart_and_their_numbers(tmp_path):
+    """QA pass: a matrix with a data axis (clean / occ) put both sets' rows in one block, with no
+    Dataset column, and numbered them 1..10 (run names do not start with the number)."""
+    proto = {"name": "eop", "tracker_hz": 10}
+    dirs = []
+    for data, occ in (("occ", True), ("clean", False)):   # occ first: the clean set comes first
+        dirs += [make_run(tmp_path, f"{data}-1-baseline-eop10", config(protocol=proto, occ=occ), {"s": 4 + occ}),
+                 make_run(tmp_path, f"{data}-2-mata-eop10", config(mata=True, protocol=proto, occ=occ), {"s": 8 + occ})]
+    rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
+    assert rows[0][:2] == ["Dataset", "Configuration"]
+    assert [(r[0], r[1], r[7]) for r in rows[2:]] == [
+        ("Synthetic", "1", "20.0"), ("", "2", "40.0"), ("Synthetic+occ", "1", "25.0"), ("", "2", "45.0")]
+
+
+def test_ablation_names_a_block_b_of_its_own_and_a_plugin_label(tmp_path, monkeypatch):
+    """QA pass: ORB + RANSAC in place of grid LK read the same as MATA, and an estimator without
+    ablation() was named by its YAML name, not its label."""
+    (tmp_path / "qa_abl_blocks.py").write_text(
+        "from dataclasses import dataclass\n"
+        "class Orb:\n    name, label = 'orb', 'ORB+RANSAC'\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def initialize(self, image): pass\n    def estimate(self, image): pass\n"
+        "class Hold:\n    name, label = 'hold', 'Hold filter'\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    confs = {"2-mata": config(mata=True),
+             "3-orb": config(mata=True, egomotion={"name": "qa_abl_blocks:Orb"}),
+             "4-hold": config(mata=True, estimator={"name": "qa_abl_blocks:Hold"})}
+    dirs = [make_run(tmp_path / "runs", n, c, {"s": 5}) for n, c in confs.items()]
+    rows = md_rows(render(build_table("ablation", load_runs(dirs)), "markdown"))
+    assert {r[0]: r[4] for r in rows[2:]} == {   # two blocks B in the table: each row names its own
+        "2": "MATA, the paper's block C (preset paper); block B: grid_lk",
+        "3": "MATA, the paper's block C (preset paper); block B: ORB+RANSAC",
+        "4": "estimator Hold filter; block B: grid_lk"}
+    one = md_rows(render(build_table("ablation", load_runs(dirs[1:2])), "markdown"))
+    assert one[2][4] == "MATA, the paper's block C (preset paper); block B: ORB+RANSAC"   # not mata-eval's
+
+
+def test_an_estimator_ablation_that_is_not_a_classmethod_is_named(tmp_path, monkeypatch):
+    """QA pass: ablation() written as an instance method gave a raw TypeError from the report."""
+    (tmp_path / "qa_abl_instance.py").write_text(
+        "from dataclasses import dataclass\n"
+        "class Hold:\n    name = 'hold'\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n"
+        "    def ablation(self, params, egomotion): return (egomotion, True, 'hold')\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": "qa_abl_instance:Hold"}), {"s": 5})
+    with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_instance:Hold': ablation\(params, egomotion\) "
+                                             r"is not a classmethod; expected @classmethod .* \(ego-motion used"):
+        build_table("ablation", load_runs([d]))

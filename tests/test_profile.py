@@ -164,7 +164,7 @@ def test_a_block_that_fails_while_profiled_is_named_with_its_call(fault, words):
     profile; both now stop with the block, the frame and the call, as a run would."""
     seq = Frames(Frames.Params(n=4, fps=10.0)).sequences()[0]
     clock = FakeClock()
-    with pytest.raises(BlockError, match=rf"tracker failed at frame 3 .*: call 3 of 8: {re.escape(words)}"):
+    with pytest.raises(BlockError, match=rf"tracker 'Misbehaving' failed at frame 3 .*: call 3 of 8: {re.escape(words)}"):
         time_blocks(seq, Misbehaving(clock, fault), frames=6, warmup=2, clock=clock)
 
 

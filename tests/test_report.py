@@ -134,6 +134,15 @@ def test_nt2f_survival_area_is_mean_nt2f():
     assert surv[0] == 1.0 and surv[-1] == 0.25  # only the never-failed sequence at t = 1
 
 
+def test_eighteen_runs_have_eighteen_colours_none_the_ground_truths_green():
+    """QA pass: a matrix of more than 10 runs repeated colours (tab10)."""
+    from matplotlib import colormaps
+
+    colours = [plots.run_colour(i) for i in range(18)]
+    assert len(set(colours)) == 18 and plots.run_colour(18) == colours[0]
+    assert tuple(colormaps["tab10"].colors[2]) not in colours
+
+
 def test_plots_are_png_files(runs, tmp_path):
     paths = plots.plot_curves(runs, tmp_path / "plots")
     assert {p.name for p in paths} == {"success.png", "precision.png", "norm_precision.png", "nt2f.png"}

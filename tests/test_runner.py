@@ -3,6 +3,7 @@ redoes; a changed configuration never mixes with old results."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import textwrap
@@ -15,7 +16,7 @@ from mata_eval.run.config import load_experiment
 from mata_eval.params import param
 from mata_eval.core.registry import PluginEntry, Registry, load_registry
 from mata_eval.run import results
-from mata_eval.run.runner import ResultsConflict, run_experiment
+from mata_eval.run.runner import ResultsConflict, prepare_run_dir, run_experiment
 from mata_eval.core.sequence import FrameReadError, Sequence
 from mata_eval.types import Box, TrackerOutput
 
@@ -486,3 +487,20 @@ def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp
     out = capsys.readouterr().out
     assert f"cannot score exp/nan: {run / 'nan.txt'}:1: expected 4 numbers x,y,w,h, got '1,2,3'" in out
     assert "1 sequence(s) failed: broken;" in out
+
+
+def test_a_refused_configuration_change_says_what_changed(tmp_path):
+    """QA pass: after a plugin's version bump the refusal gave two config hashes, not the plugin."""
+    exp = _exp(tmp_path)
+    spec = exp.runs[0]
+    old = dataclasses.replace(spec, resolved={**spec.resolved, "plugin_versions": {"qa-blocks": "0.1.0"}})
+    new = dataclasses.replace(spec, resolved={**spec.resolved, "plugin_versions": {"qa-blocks": "0.2.0"}})
+    prepare_run_dir(exp, old, force=False)
+    with pytest.raises(ResultsConflict, match=r"different configuration \(plugin_versions\.qa-blocks: '0\.1\.0' then, "
+                                              r"'0\.2\.0' now; config hash "):
+        prepare_run_dir(exp, new, force=False)
+    (tmp_path / "b").mkdir()
+    prepare_run_dir(_exp(tmp_path / "b"), _exp(tmp_path / "b").runs[0], force=False)
+    changed = _exp(tmp_path / "b", "{name: shift, nan_after: 100}")
+    with pytest.raises(ResultsConflict, match=r"different configuration \(tracker\.nan_after: .* then, 100 now;"):
+        prepare_run_dir(changed, changed.runs[0], force=False)

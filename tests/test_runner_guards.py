@@ -146,7 +146,7 @@ def test_a_call_that_never_returns_fails_its_sequence_and_the_run_goes_on(tmp_pa
     # QA pass: a string confidence passed; a tuple box died in an AttributeError naming no block
     # or frame; a string coordinate was called "non-finite"
     ("confidence_text", "returned confidence '0.5'; expected a number in [0, 1]"),
-    ("tuple_box", "tracker failed at frame 2 (t = 0.0667 s): returned a box of type tuple"),
+    ("tuple_box", "tracker 'faulty' failed at frame 2 (t = 0.0667 s): returned a box of type tuple"),
     ("text_box", "returned a box that is not four finite numbers"),
     # QA pass: written to the box file and scored as IoU 0
     ("negative_box", "returned a box of negative size: Box(x=10.0, y=10.0, w=-5.0, h=10.0)")])

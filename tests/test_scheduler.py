@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 
 import numpy as np
 import pytest
@@ -319,9 +320,9 @@ def test_profile_like_latency_and_jitter_are_seeded():
 
 
 def test_tracker_failures_name_block_and_frame():
-    with pytest.raises(BlockError, match=r"tracker failed at frame 3 .*ValueError: boom"):
+    with pytest.raises(BlockError, match=r"tracker 'FrameTracker' failed at frame 3 .*ValueError: boom"):
         run_sequence(make_sequence(6), FrameTracker(fail_at=3), None, None, LTP(), np.random.default_rng(0))
-    with pytest.raises(BlockError, match=r"tracker failed at frame 2 .*not four finite numbers"):
+    with pytest.raises(BlockError, match=r"tracker 'FrameTracker' failed at frame 2 .*not four finite numbers"):
         run_sequence(make_sequence(6), FrameTracker(nan_at=2), None, None, LTP(), np.random.default_rng(0))
     # An unreadable frame is not the tracker's fault: the read error comes out as it is.
     with pytest.raises(FrameReadError, match="cannot read frame 4"):
@@ -416,3 +417,119 @@ def test_recording_the_estimators_state_adds_columns_and_changes_nothing(monkeyp
     # the tracker's first box (captured at frame 3, confidence 0.003) reaches the filter at frame 6
     assert [r["est_boxes_used"] for r in rows] == ["0"] * 6 + ["1"] * 3
     assert [r["est_ewma"] for r in rows] == ["nan"] * 6 + ["1"] * 3
+
+
+class OddEgoMotion(FrameEgoMotion):
+    """FrameEgoMotion whose motion from frame 2 on is ``motion``."""
+
+    name = "odd_ego"
+
+    def __init__(self, motion):
+        super().__init__()
+        self.motion = motion
+
+    def estimate(self, image):
+        m = super().estimate(image)
+        return self.motion if int(image[0, 0, 0]) >= 2 else m
+
+
+NAN_H = np.full((3, 3), np.nan)
+
+
+@pytest.mark.parametrize("motion, words", [
+    (Motion(np.eye(3)[:2]), "returned H of shape (2, 3); expected a 3x3 array"),
+    (Motion([[1, 0], [0, 1]]), "returned H of shape (2, 2); expected a 3x3 array"),
+    (Motion("eye"), "returned H of type str, not numbers; expected a 3x3 array"),
+    (Motion(np.eye(3), cov=np.eye(4)), "returned a covariance of shape (4, 4); expected 9x9"),
+    (Motion(NAN_H), "returned a valid motion whose H (or covariance) is not finite or has h33 = 0"),
+    (Motion(np.zeros((3, 3))), "returned a valid motion whose H (or covariance) is not finite or has h33 = 0"),
+    (Motion(np.eye(3), cov=np.full((9, 9), np.nan)), "returned a valid motion whose H (or covariance) is not finite"),
+    (Motion(np.eye(3), inliers="many"), "returned inliers 'many', sigma None; expected a number"),
+    (None, "expected a Motion, got NoneType"),
+])
+def test_a_motion_that_breaks_the_motion_type_names_the_egomotion_and_the_frame(motion, words):
+    """QA pass: block B's output was never checked: a 2x3 or NaN H was dropped by the EKF as
+    invalid while frames.csv said motion_valid = 1, or failed the estimator, which was blamed."""
+    with pytest.raises(BlockError, match=rf"^egomotion 'odd_ego' failed at frame 2 \(t = 0.0667 s\): {re.escape(words)}"):
+        run_sequence(make_sequence(6), FrameTracker(), OddEgoMotion(motion), LogEstimator(), LTP(),
+                     np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("motion", [Motion.invalid(), Motion(NAN_H, valid=False), Motion(np.eye(3), inliers=np.int64(3))])
+def test_no_motion_this_time_is_a_motion_with_valid_false(motion):
+    run = run_sequence(make_sequence(6), FrameTracker(), OddEgoMotion(motion), LogEstimator(), LTP(),
+                       np.random.default_rng(0))
+    rows = list(csv.DictReader(io.StringIO(run.frames_csv())))
+    assert [r["motion_valid"] for r in rows[1:]] == ["1"] + [str(int(motion.valid))] * 4
+
+
+class OddEstimator(LogEstimator):
+    """LogEstimator whose estimates from t = 2/30 on are ``make(box)``."""
+
+    def __init__(self, make):
+        super().__init__()
+        self.make = make
+
+    def step(self, t, motions=(), detections=()):
+        e = super().step(t, motions, detections)
+        return self.make(e.box) if t > 0.05 else e
+
+
+@pytest.mark.parametrize("make, words", [
+    (lambda b: Estimate(b, search=(math.nan, 1.0)), "returned search centre (nan, 1.0); expected two finite numbers"),
+    (lambda b: Estimate(b, search=(1.0,)), "returned search centre (1.0,); expected two finite numbers"),
+    (lambda b: Estimate(b, cov=np.ones((2, 3))), "returned a covariance of shape (2, 3); expected a square matrix"),
+    (lambda b: Estimate(b, cov=np.full((3, 3), np.nan)), "returned a covariance holding NaN"),
+    (lambda b: b, "expected an Estimate, got Box"),
+])
+def test_an_estimate_that_breaks_the_estimate_type_names_the_estimator(make, words):
+    with pytest.raises(BlockError, match=rf"^estimator 'OddEstimator' failed at frame 2 .*: {re.escape(words)}"):
+        run_sequence(make_sequence(6), FrameTracker(), None, OddEstimator(make), LTP(), np.random.default_rng(0))
+
+
+def test_an_empty_estimate_box_is_a_lost_target_not_an_error():
+    run = run_sequence(make_sequence(6), FrameTracker(), None, OddEstimator(lambda b: Estimate(Box(b.x, b.y, 0.0, 0.0))),
+                       LTP(), np.random.default_rng(0))
+    assert run.boxes[5, 2] == 0.0 and run.boxes[5, 3] == 0.0
+
+
+class DiagEstimator(LogEstimator):
+    """LogEstimator whose diagnostics() return ``diag`` (or raise it)."""
+
+    name = "diag_est"
+
+    def __init__(self, diag):
+        super().__init__()
+        self.diag = diag
+
+    def diagnostics(self):
+        if isinstance(self.diag, Exception):
+            raise self.diag
+        return self.diag
+
+
+@pytest.mark.parametrize("diag, words", [
+    (KeyError("boom"), "diagnostics(): KeyError: 'boom'"),
+    (None, "diagnostics() returned NoneType; expected a dict of str -> number"),
+    ([1.0], "diagnostics() returned list; expected a dict of str -> number"),
+    ({"state": "coasting"}, "diagnostics() key 'state': 'coasting' is not a number"),
+    ({"v": [1.0, 2.0]}, "diagnostics() key 'v': [1.0, 2.0] is not a number"),
+    ({"a,b": 1.0}, "diagnostics() key 'a,b': expected letters, digits and _ (a frames.csv column name)"),
+    ({"c\nd": 1.0}, "diagnostics() key 'c\\nd': expected letters, digits and _"),
+    ({"cd\n": 1.0}, "diagnostics() key 'cd\\n': expected letters, digits and _"),
+    ({1: 1.0}, "diagnostics() key 1: expected letters, digits and _"),
+])
+def test_a_diagnostics_that_breaks_its_contract_names_the_estimator_and_the_key(monkeypatch, diag, words):
+    """QA pass: diagnostics() raising or returning a str, None or a list failed the sequence with a
+    bare reason; a key holding ',' or a newline corrupted frames.csv's header (IndexError later)."""
+    monkeypatch.setenv("MATA_EVAL_RECORD", "1")
+    with pytest.raises(BlockError, match=rf"^estimator 'diag_est' failed at frame 0 .*: {re.escape(words)}"):
+        run_sequence(make_sequence(6), FrameTracker(), None, DiagEstimator(diag), LTP(), np.random.default_rng(0))
+
+
+def test_diagnostics_numbers_and_flags_are_recorded(monkeypatch):
+    monkeypatch.setenv("MATA_EVAL_RECORD", "1")
+    run = run_sequence(make_sequence(3), FrameTracker(), None, DiagEstimator({"used": True, "n": np.int64(2)}),
+                       LTP(), np.random.default_rng(0))
+    rows = list(csv.DictReader(io.StringIO(run.frames_csv())))
+    assert [(r["est_used"], r["est_n"]) for r in rows] == [("1", "2")] * 3

@@ -141,7 +141,10 @@ class Motion:
     the current one (h33 = 1), its 9x9 covariance (row-major vec(H), h33 = 1 chart) or None,
     the inlier count, the estimated point noise (px) and a validity flag. ``unchanged``: the
     current image is the previous one within compression noise (a repeated frame, e.g. a
-    clip padded to a higher frame rate), so nothing in the image moved over this interval."""
+    clip padded to a higher frame rate), so nothing in the image moved over this interval.
+    No motion this time (too few points, a failed fit) is ``valid=False`` (:meth:`invalid`); a
+    run fails the sequence, naming the plugin, on an H that is not 3x3, a covariance that is not
+    9x9, or a valid motion whose H or covariance is not finite or whose h33 is 0."""
 
     H: np.ndarray
     cov: np.ndarray | None = None
@@ -164,7 +167,9 @@ class Estimate:
     """Block C's output: a box, where the estimator has one its state covariance, and what is
     fed back to the tracker as its search centre (paper L424; with ``feedback: true``): the box
     centre, or ``search`` where the estimator hands out another centre, or nothing when it
-    withholds it (``feedback=False``: the tracker then searches where it would alone)."""
+    withholds it (``feedback=False``: the tracker then searches where it would alone). A box of
+    width or height 0 is "target lost"; a run refuses a box that is not finite, a search centre
+    that is not two finite numbers and a covariance that is not a square matrix (or holds NaN)."""
 
     box: Box
     cov: np.ndarray | None = None

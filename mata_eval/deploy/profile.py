@@ -29,7 +29,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from ..run.scheduler import BlockError, output_problem
+from ..run.scheduler import BlockError, output_problem, plugin_name
 from ..run.timing_profile import TimingProfile, profile_from_samples
 from ..core.types import Stamped
 
@@ -183,10 +183,12 @@ def time_blocks(sequence: Any, tracker: Any, egomotion: Any = None, estimator: A
         try:
             value = fn(*args)
         except Exception as exc:   # which block, which call: not a traceback from inside it
-            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {type(exc).__name__}: {exc}") from exc
+            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {type(exc).__name__}: {exc}",
+                             plugin_name(getattr(fn, "__self__", None))) from exc
         dt = clock() - t0
         if (problem := output_problem(name, value)) is not None:   # what a run would refuse
-            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {problem}")
+            raise BlockError(name, k, k / fps, f"call {i + 1} of {total}: {problem}",
+                             plugin_name(getattr(fn, "__self__", None)))
         if i >= warmup:
             samples.setdefault(name, []).append(dt)
         if pace is not None:

@@ -145,14 +145,16 @@ def has_challenges(runs: Sequence[RunScores]) -> bool:
 
 def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     """MATA minus its baseline, in points, for every MATA run whose baseline (the same
-    configuration without ego-motion and estimator) is among ``runs``: the experiment's
+    configuration without ego-motion and estimator; the versions of installed plugins, which
+    name those blocks' packages too, are not compared) is among ``runs``: the experiment's
     takeaway per tracker and protocol. Configurations come from each run folder's manifest;
     None when no run has its baseline here."""
     from ..run.results import read_manifest
     from .paper import is_mata, plugin_label, protocol_label
 
     def key(cfg: dict) -> str:
-        return json.dumps({k: v for k, v in cfg.items() if k not in ("egomotion", "estimator", "feedback")},
+        blocks = ("egomotion", "estimator", "feedback", "plugin_versions")
+        return json.dumps({k: v for k, v in cfg.items() if k not in blocks},
                           sort_keys=True, default=str)
 
     configs = []

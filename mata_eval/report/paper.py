@@ -22,6 +22,7 @@ Rendering: Markdown and LaTeX booktabs by :mod:`.tables`, HTML by :mod:`.html`.
 
 from __future__ import annotations
 
+import inspect
 import math
 import re
 from dataclasses import dataclass
@@ -230,11 +231,13 @@ def challenges_table(runs: Sequence[PlacedRun]) -> Table:
                       rows, blocks, notes)
 
 
-def ablation_marks(config: Mapping[str, Any]) -> tuple[bool, bool, bool | None, str]:
+def ablation_marks(config: Mapping[str, Any], name_egomotion: bool = False) -> tuple[bool, bool, bool | None, str]:
     """(ego-motion used, EKF used, explainable score used or None when the tracker has no choice,
     description) of one configuration, from its resolved config (paper Table 3 columns). The
     plugins say what their parameters mean: the estimator's ``ablation(params, egomotion)`` gives
-    the first two and the description, the tracker's ``explainable_score(params)`` the third."""
+    the first two and the description, the tracker's ``explainable_score(params)`` the third.
+    The description names block B (its ``label``) when it is not one of mata-eval's own plugins,
+    or when ``name_egomotion`` (the table's runs use more than one)."""
     est = config.get("estimator") or {}
     tracker = config.get("tracker") or {}
     egomotion = config.get("egomotion") is not None
@@ -246,11 +249,32 @@ def ablation_marks(config: Mapping[str, Any]) -> tuple[bool, bool, bool | None, 
         return egomotion, False, score, details
     ecls = _plugin_class("estimator", est)
     if not hasattr(ecls, "ablation"):
-        return egomotion, False, score, f"estimator {est.get('name')}"
-    ego, ekf, details = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+        ego, ekf, details = egomotion, False, f"estimator {plugin_label('estimator', est)}"
+    else:
+        ego, ekf, details = _estimator_ablation(ecls, est, egomotion)
+    if ego and (name_egomotion or not _own_plugin(_plugin_class("egomotion", config.get("egomotion")))):
+        details += f"; block B: {plugin_label('egomotion', config.get('egomotion'))}"
     if ego and (changed := _non_defaults("egomotion", config.get("egomotion"))):
         details += f"; {config['egomotion']['name']}: {changed}"   # a block B setting is a configuration too
     return ego, ekf, score, details
+
+
+def _estimator_ablation(ecls: type, est: Mapping[str, Any], egomotion: bool) -> tuple[bool, bool, str]:
+    """The estimator class's ``ablation(params, egomotion)``: a classmethod returning (ego-motion
+    used, EKF used, description); anything else is a :class:`PlacementError` naming the plugin."""
+    expected = "expected @classmethod ablation(cls, params, egomotion) -> (ego-motion used, EKF used, description)"
+    if not isinstance(inspect.getattr_static(ecls, "ablation"), (classmethod, staticmethod)):
+        raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) is not a classmethod; "
+                             f"{expected}")
+    out = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+    if not (isinstance(out, tuple) and len(out) == 3 and isinstance(out[2], str)):
+        raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) returned {out!r}; {expected}")
+    return bool(out[0]), bool(out[1]), out[2]
+
+
+def _own_plugin(cls: Any) -> bool:
+    """Whether a plugin class is one of mata-eval's own (False for a class no longer installed)."""
+    return cls is not None and cls.__module__.split(".")[0] in ("mata_eval", "mata_eval_plugins")
 
 
 def _non_defaults(kind: str, block: Mapping[str, Any] | None) -> str:
@@ -263,40 +287,48 @@ def _non_defaults(kind: str, block: Mapping[str, Any] | None) -> str:
                      if k != "name" and hasattr(defaults, k) and v != getattr(defaults, k))
 
 
-_CONFIG_NUMBER = re.compile(r"^(\d+)[-_ ]")
+#: a configuration's number: the leading number of a matrix label ("2-mata", "occ-2-mata-ltp")
+_CONFIG_NUMBER = re.compile(r"(?:^|-)(\d+)[-_ ]")
 
 
 def ablation_table(runs: Sequence[PlacedRun]) -> Table:
-    """Paper Table 3: one row per configuration (numbered by the run label's leading number, else
-    in the order given), its block marks, description, PR, SR, MSR, NT2F. A VOT column is added
-    when the runs use more than one tracker, a Protocol column when they use more than one
-    protocol (rows then grouped by tracker, then protocol)."""
+    """Paper Table 3: one row per configuration (numbered by the first matrix label of the run
+    name that starts with a number, e.g. ``2`` for ``occ-2-mata-ltp``, else in the order given),
+    its block marks, description, PR, SR, MSR, NT2F. A Dataset column is added when the runs use
+    more than one data set (``+occ``: with the occlusion augmentation), a VOT column when they use
+    more than one tracker, a Protocol column when they use more than one protocol (rows then
+    grouped by data set, tracker, then protocol). Block B is named in the description when the
+    runs use more than one."""
     def number(i_r):
         i, r = i_r
-        m = _CONFIG_NUMBER.match(r.name)
+        m = _CONFIG_NUMBER.search(r.name)
         return (int(m.group(1)) if m else 10_000 + i)
 
+    datasets = _dataset_order(runs)
     trackers = _tracker_order(runs)
     protocols = _protocol_order(runs)
-    vary_t, vary_p = len(trackers) > 1, len(protocols) > 1
-    ordered = sorted(enumerate(runs), key=lambda i_r: (trackers.index(i_r[1].tracker),
+    vary_d, vary_t, vary_p = len(datasets) > 1, len(trackers) > 1, len(protocols) > 1
+    name_ego = len({(r.config.get("egomotion") or {}).get("name") for r in runs if r.config.get("egomotion")}) > 1
+    ordered = sorted(enumerate(runs), key=lambda i_r: (datasets.index(i_r[1].dataset_key),
+                                                      trackers.index(i_r[1].tracker),
                                                       protocols.index(i_r[1].protocol), number(i_r)))
     rows, blocks, group = [], [], None
     count = 0
     for i, r in ordered:
-        if (vary_t or vary_p) and group != (r.tracker, r.protocol):
+        if (vary_d or vary_t or vary_p) and group != (r.dataset_key, r.tracker, r.protocol):
             blocks.append(len(rows))
-            group, count = (r.tracker, r.protocol), 0
+            group, count = (r.dataset_key, r.tracker, r.protocol), 0
         count += 1
-        ego, ekf, score, details = ablation_marks(r.config)
-        m = _CONFIG_NUMBER.match(r.name)
+        ego, ekf, score, details = ablation_marks(r.config, name_ego)
+        m = _CONFIG_NUMBER.search(r.name)
         s = r.scores.summary.overall
-        rows.append(([r.tracker] if vary_t else []) + ([r.protocol] if vary_p else [])
+        rows.append(([r.dataset] if vary_d else []) + ([r.tracker] if vary_t else [])
+                    + ([r.protocol] if vary_p else [])
                     + [m.group(1) if m else str(count), mark(ego), mark(ekf), mark(score), details,
                        pct(s.pr), pct(s.sr), pct(s.msr), pct(s.nt2f)])
-    if not (vary_t or vary_p):
+    if not (vary_d or vary_t or vary_p):
         blocks = [0, 2, 3] if len(rows) >= 4 else [0]
-    stub = (["VOT"] if vary_t else []) + (["Protocol"] if vary_p else []) + \
+    stub = (["Dataset"] if vary_d else []) + (["VOT"] if vary_t else []) + (["Protocol"] if vary_p else []) + \
         ["Configuration", "Ego motion", "EKF", "Score", "Details"]
     return Table("ablation", CAPTIONS["ablation"], stub, [], ["PR", "SR", "MSR", "NT2F"], rows, blocks)
 

@@ -25,12 +25,14 @@ def nt2f_survival(values: Sequence[float], grid: np.ndarray) -> np.ndarray:
 
 
 def run_colour(i: int) -> tuple[float, float, float]:
-    """RGB colour of the ``i``-th run of a report: matplotlib's tab10 cycle without its green,
-    which is the ground truth's in ``mata-eval play``. Every plot of a report, and the playback
-    video, gives run ``i`` this colour whatever the order of its legend."""
+    """RGB colour of the ``i``-th run of a report: matplotlib's tab10 colours, then their light
+    tab20 shades (18 runs before a colour repeats), without the greens, which are the ground
+    truth's in ``mata-eval play``. Every plot of a report, and the playback video, gives run ``i``
+    this colour whatever the order of its legend."""
     from matplotlib import colormaps
 
-    cycle = [c for j, c in enumerate(colormaps["tab10"].colors) if j != 2]
+    tab20 = colormaps["tab20"].colors   # (dark, light) pairs; the dark ones are tab10's
+    cycle = [tab20[j] for j in range(0, 20, 2) if j != 4] + [tab20[j] for j in range(1, 20, 2) if j != 5]
     return tuple(cycle[i % len(cycle)])
 
 

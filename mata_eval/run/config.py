@@ -493,6 +493,19 @@ def _resolve_rest(run_name: str, cfg: dict, where: Callable[[KeyPath], str], blo
                    None if timeout is None else float(timeout), on_bad)
 
 
+def config_change(old: Any, new: Any, path: str = "") -> str | None:
+    """The first difference between two resolved configurations (keys in sorted order), e.g.
+    ``plugin_versions.qa-blocks: '0.1.0' then, '0.2.0' now``; None when they are the same."""
+    if isinstance(old, Mapping) and isinstance(new, Mapping):
+        for k in sorted(set(old) | set(new), key=str):
+            if (change := config_change(old.get(k), new.get(k), f"{path}.{k}" if path else str(k))) is not None:
+                return change
+        return None
+    if json.dumps(old, sort_keys=True, default=str) == json.dumps(new, sort_keys=True, default=str):
+        return None   # as JSON: a tuple now is the list the manifest read back
+    return f"{path or 'configuration'}: {old!r} then, {new!r} now"
+
+
 def plugin_distribution(cls: type) -> dict[str, str]:
     """{distribution: version} of the installed package a third-party plugin class comes from
     (recorded in the run's configuration, so in its hash and manifest); empty for mata-eval's

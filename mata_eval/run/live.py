@@ -38,7 +38,8 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from .scheduler import (BLOCKS, EPS, MOTION_CALL_COLUMNS, TRACKER_CALL_COLUMNS, BlockError, SequenceRun,
-                        TraceEvent, frames_and_fps, motion_call_row, output_problem, start_box, tracker_call_row)
+                        TraceEvent, frames_and_fps, motion_call_row, output_problem, plugin_name, start_box,
+                        tracker_call_row)
 from ..core.sequence import Sequence
 from ..core.types import Box, Stamped
 
@@ -241,7 +242,7 @@ def _warm_up(objs: Mapping[str, Any], image: np.ndarray, box: Box, calls: int) -
             for _ in range(calls):
                 call(obj)
         except Exception as exc:
-            raise BlockError(block, 0, 0.0, f"warm-up: {type(exc).__name__}: {exc}") from exc
+            raise BlockError(block, 0, 0.0, f"warm-up: {type(exc).__name__}: {exc}", plugin_name(obj)) from exc
 
 
 def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], float], scale: float,
@@ -284,7 +285,7 @@ def _worker(block: str, objs: Mapping[str, Any], bus: _Bus, now: Callable[[], fl
             if block == "estimator":  # kept within half a box of the image, as in the scheduler
                 value = value.within(image.shape[1], image.shape[0])
         except Exception as exc:
-            err = BlockError(block, k, t_k, f"{type(exc).__name__}: {exc}")
+            err = BlockError(block, k, t_k, f"{type(exc).__name__}: {exc}", plugin_name(obj))
             err.__cause__ = exc
             with bus.cond:
                 bus.error = bus.error or err

@@ -23,7 +23,7 @@ from tqdm import tqdm
 from ..core.errors import Interrupted, UserError
 from ..core.sequence import Sequence
 from . import results
-from .config import Experiment, RunSpec
+from .config import Experiment, RunSpec, config_change
 from .executors import Executor, LocalExecutor
 from .scheduler import RateWarning
 from .stop import stop_on_signals
@@ -120,6 +120,13 @@ def _read_beyond_the_configuration(old: dict, now: dict) -> str | None:
     return None
 
 
+def _change(old: dict, spec: RunSpec) -> str:
+    """``<what changed>; `` between an old manifest's configuration and this run's (e.g. a plugin's
+    version), or nothing when the old manifest has none."""
+    change = config_change(old["config"], spec.resolved) if isinstance(old.get("config"), dict) else None
+    return "" if change is None else f"{change}; "
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = ()) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
     to mix results of another configuration, or of other model files or preset values."""
@@ -141,8 +148,9 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
     if old is not None and old.get("config_hash") != spec.config_hash:
         if not force:
             raise ResultsConflict(
-                f"{out} holds results of a different configuration (config hash {old.get('config_hash')} "
-                f"!= {spec.config_hash}); rerun with --force to replace them, or change `output` in {exp.path}")
+                f"{out} holds results of a different configuration ({_change(old, spec)}config hash "
+                f"{old.get('config_hash')} != {spec.config_hash}); rerun with --force to replace them, "
+                f"or change `output` in {exp.path}")
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
     elif old is not None and (changed := _read_beyond_the_configuration(old, inputs)) is not None:
         if not force:

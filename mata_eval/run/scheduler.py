@@ -36,6 +36,7 @@ import io
 import math
 import numbers
 import os
+import re
 import signal
 import threading
 import time
@@ -186,11 +187,22 @@ class RateWarning(UserWarning):
 
 
 class BlockError(RuntimeError):
-    """A block raised or returned an unusable value; names the block and the frame."""
+    """A block raised or returned an unusable value; names the block, its plugin (when known:
+    :func:`plugin_name`) and the frame."""
 
-    def __init__(self, block: str, frame: int, t: float, message: str):
-        self.block, self.frame, self.t = block, frame, t
-        super().__init__(f"{block} failed at frame {frame} (t = {t:.4f} s): {message}")
+    def __init__(self, block: str, frame: int, t: float, message: str, plugin: str | None = None):
+        self.block, self.frame, self.t, self.plugin = block, frame, t, plugin
+        who = block if plugin is None else f"{block} {plugin!r}"
+        super().__init__(f"{who} failed at frame {frame} (t = {t:.4f} s): {message}")
+
+
+def plugin_name(obj: Any) -> str | None:
+    """The name a block object's plugin goes by (its ``name``, else its class's name); None for
+    None."""
+    if obj is None:
+        return None
+    name = getattr(obj, "name", None)
+    return name if isinstance(name, str) and name else type(obj).__name__
 
 
 @dataclass(frozen=True, eq=False)
@@ -509,7 +521,7 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, "estimator", k, tk, estimator.step, tk, (), dets)
                     wall_ms["estimator"][k] += 1e3 * (clock() - t0)
-                    _check_output("estimator", value, k, tk)
+                    _check_output("estimator", value, k, tk, estimator)
                     value = bounded(value)
                     boards["estimator"].post(value, tk, k, est_tick)
                 continue
@@ -530,9 +542,8 @@ def sequence_steps(
                 t0 = clock()
                 value = _call(alarm, b, k, tk, obj.initialize if first else obj.estimate, img)
                 wall = clock() - t0
-                if not first and not isinstance(value, Motion):
-                    raise BlockError(b, k, tk, f"expected a Motion, got {type(value).__name__}")
                 if not first:
+                    _check_output(b, value, k, tk, obj)
                     motion_calls[k] = motion_call_row(value)
             elif b == "tracker":
                 img = frame_image()
@@ -545,7 +556,7 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, b, k, tk, obj.track, img, prior)
                     wall = clock() - t0
-                    _check_output("tracker", value, k, tk)
+                    _check_output("tracker", value, k, tk, obj)
                     tracker_calls[k] = tracker_call_row(value, prior)
             else:  # estimator, first half: the camera motion and the detections visible now
                 if first:
@@ -558,14 +569,14 @@ def sequence_steps(
                     t0 = clock()
                     value = _call(alarm, b, k, tk, obj.step, tk, motions, dets)
                     wall = clock() - t0
-                _check_output("estimator", value, k, tk)
+                _check_output("estimator", value, k, tk, obj)
                 value = bounded(value)
             t_pub = publish(b, k, tk, value, wall, first)
             if b == "estimator" and not first:
                 est_tick = t_pub
 
         if record and math.isfinite(wall_ms["estimator"][k]):   # MATA_EVAL_RECORD: the filter's state
-            for key, v in estimator.diagnostics().items():
+            for key, v in _diagnostics(alarm, estimator, k, tk).items():
                 est_state.setdefault(key, np.full(n, np.nan))[k] = v
 
         # A tracker with a free start, free before the next frame, starts at once on this one
@@ -578,7 +589,7 @@ def sequence_steps(
             t0 = clock()
             value = _call(alarm, "tracker", k, ts, tracker.track, frame_image(), prior_at(ts))
             wall = clock() - t0
-            _check_output("tracker", value, k, ts)
+            _check_output("tracker", value, k, ts, tracker)
             publish("tracker", k, ts, value, wall, False)
 
         # Zero-order hold: the newest output of the output block visible at t_k.
@@ -616,6 +627,33 @@ def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> l
     return [Stamped(board.values[i], board.t_capture[i], board.t_publish[i] + delay) for i in range(i0, i1)]
 
 
+#: an ``est_<key>`` column name of frames.csv
+_DIAGNOSTICS_KEY = re.compile(r"[A-Za-z0-9_]+")
+
+
+def _diagnostics(alarm: "_CallAlarm", estimator: Any, k: int, t: float) -> dict[str, float]:
+    """The estimator's ``diagnostics()``, checked: a dict of str (letters, digits, _: a frames.csv
+    column name) -> number (a bool is 0 / 1); anything else is a :class:`BlockError` naming the
+    estimator and the key."""
+    def fail(message: str) -> BlockError:
+        return BlockError("estimator", k, t, message, plugin_name(estimator))
+
+    try:
+        out = alarm.call(estimator.diagnostics)
+    except CallTimeout as exc:
+        raise fail(f"diagnostics(): {exc}") from None
+    except Exception as exc:
+        raise fail(f"diagnostics(): {type(exc).__name__}: {exc}") from exc
+    if not isinstance(out, Mapping):
+        raise fail(f"diagnostics() returned {type(out).__name__}; expected a dict of str -> number")
+    for key, v in out.items():
+        if not (isinstance(key, str) and _DIAGNOSTICS_KEY.fullmatch(key)):
+            raise fail(f"diagnostics() key {key!r}: expected letters, digits and _ (a frames.csv column name)")
+        if not isinstance(v, numbers.Real):
+            raise fail(f"diagnostics() key {key!r}: {v!r} is not a number")
+    return {key: float(v) for key, v in out.items()}
+
+
 class CallTimeout(BaseException):
     """A block call ran past ``timeout_s`` (a BaseException: a block's own ``except Exception``
     does not swallow it)."""
@@ -651,9 +689,9 @@ def _call(alarm: _CallAlarm, block: str, k: int, t: float, fn: Callable, *args: 
     try:
         return alarm.call(fn, *args)
     except CallTimeout as exc:
-        raise BlockError(block, k, t, str(exc)) from None
+        raise BlockError(block, k, t, str(exc), plugin_name(getattr(fn, "__self__", None))) from None
     except (Exception, SystemExit, KeyboardInterrupt) as exc:
-        raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}") from exc
+        raise BlockError(block, k, t, f"{type(exc).__name__}: {exc}", plugin_name(getattr(fn, "__self__", None))) from exc
 
 
 #: the type each block's call returns
@@ -661,15 +699,16 @@ OUTPUT_TYPES = {"egomotion": Motion, "tracker": TrackerOutput, "estimator": Esti
 
 
 def output_problem(block: str, value: Any) -> str | None:
-    """What is wrong with a block's output, or None: the type the block promises, for the
-    tracker and the estimator a :class:`Box` of four finite numbers, of size >= 0, for the tracker a
-    confidence that is a number in [0, 1]. The scheduler, the live runtime and ``mata-eval
-    profile`` check every call with it."""
+    """What is wrong with a block's output, or None: the type the block promises; for the
+    ego-motion a :func:`motion_problem`; for the tracker and the estimator a :class:`Box` of four
+    finite numbers, of size >= 0 (0: "nothing here"); for the tracker a confidence that is a
+    number in [0, 1], for the estimator an :func:`estimate_problem`. The scheduler, the live
+    runtime and ``mata-eval profile`` check every call with it."""
     want = OUTPUT_TYPES[block]
     if not isinstance(value, want):
-        return f"expected a {want.__name__}, got {type(value).__name__}"
+        return f"expected {'an' if want.__name__[0] in 'AEIOU' else 'a'} {want.__name__}, got {type(value).__name__}"
     if block == "egomotion":
-        return None
+        return motion_problem(value)
     if not isinstance(value.box, Box):
         return f"returned a box of type {type(value.box).__name__}; expected a mata_eval.types.Box"
     if not _finite(value.box):
@@ -680,12 +719,59 @@ def output_problem(block: str, value: Any) -> str | None:
         c = value.confidence
         if not (_is_number(c) and 0.0 <= float(c) <= 1.0):
             return f"returned confidence {c!r}; expected a number in [0, 1]"
+        return None
+    return estimate_problem(value)
+
+
+def motion_problem(m: Motion) -> str | None:
+    """What is wrong with a :class:`Motion`, or None: H a 3x3 array of numbers, ``cov`` None or
+    9x9, ``inliers`` a number, ``sigma`` None or a number; a valid motion's H and cov finite, h33
+    not 0. "No motion this time" is ``valid=False`` (``Motion.invalid()``), whatever its H holds."""
+    H = _array(m.H)
+    if H is None or H.shape != (3, 3):
+        return f"returned H of {_shape(m.H, H)}; expected a 3x3 array (Motion.invalid() when there is no motion)"
+    C = None if m.cov is None else _array(m.cov)
+    if m.cov is not None and (C is None or C.shape != (9, 9)):
+        return f"returned a covariance of {_shape(m.cov, C)}; expected 9x9 (row-major vec(H)) or None"
+    if not _is_number(m.inliers) or not (m.sigma is None or _is_number(m.sigma)):
+        return f"returned inliers {m.inliers!r}, sigma {m.sigma!r}; expected a number and a number or None"
+    if m.valid and (not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12 or (C is not None and not np.all(np.isfinite(C)))):
+        return (f"returned a valid motion whose H (or covariance) is not finite or has h33 = 0: H = {H.tolist()}; "
+                f"return Motion.invalid() (valid=False) when there is no motion")
     return None
 
 
-def _check_output(block: str, value: Any, k: int, t: float) -> None:
+def estimate_problem(e: Estimate) -> str | None:
+    """What is wrong with an :class:`Estimate` beyond its box, or None: ``search`` None or two
+    finite numbers, ``cov`` None or a square matrix of numbers (not NaN)."""
+    if e.search is not None and not (isinstance(e.search, (tuple, list)) and len(e.search) == 2
+                                     and all(_is_number(v) and math.isfinite(v) for v in e.search)):
+        return f"returned search centre {e.search!r}; expected two finite numbers (cx, cy) or None"
+    if e.cov is not None:
+        C = _array(e.cov)
+        if C is None or C.ndim != 2 or C.shape[0] != C.shape[1]:
+            return f"returned a covariance of {_shape(e.cov, C)}; expected a square matrix or None"
+        if np.any(np.isnan(C)):
+            return "returned a covariance holding NaN; expected numbers (inf: unknown) or None"
+    return None
+
+
+def _array(value: Any) -> np.ndarray | None:
+    """``value`` as an array of floats, or None when it is not numbers."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+
+
+def _shape(value: Any, arr: np.ndarray | None) -> str:
+    """``shape (2, 3)``, or what ``value`` is when it is not numbers."""
+    return f"type {type(value).__name__}, not numbers" if arr is None else f"shape {arr.shape}"
+
+
+def _check_output(block: str, value: Any, k: int, t: float, obj: Any = None) -> None:
     if (problem := output_problem(block, value)) is not None:
-        raise BlockError(block, k, t, problem)
+        raise BlockError(block, k, t, problem, plugin_name(obj))
 
 
 def _is_number(v: Any) -> bool:

@@ -172,6 +172,10 @@ def read_frames_csv(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         raise ValueError(f"{path}: expected a header with a 'scored' column, got {rows[0] if rows else 'an empty file'}")
     head = rows[0]
     body = [r for r in rows[1:] if r]
+    for n, r in enumerate(body, start=2):   # a short or long row: a hand edit, or a header broken by a name
+        if len(r) != len(head):
+            raise ValueError(f"{path}:{n}: expected {len(head)} comma-separated values as in the header (line 1), "
+                             f"got {len(r)}")
     i_scored = head.index("scored")
     scored = np.array([_parse_flag(r[i_scored], f"{path}:{n}") for n, r in enumerate(body, start=2)], dtype=bool)
     wall = {}
@@ -181,9 +185,9 @@ def read_frames_csv(path: Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
             for n, r in enumerate(body, start=2):
                 try:
                     vals.append(float(r[j]) if r[j].strip() != "" else np.nan)
-                except (ValueError, IndexError):
+                except ValueError:
                     raise ValueError(f"{path}:{n}: column {name!r}: expected a number of ms or empty, "
-                                     f"got {r[j] if j < len(r) else '(missing)'!r}") from None
+                                     f"got {r[j]!r}") from None
             wall[name[:-3]] = np.array(vals, dtype=float)
     return scored, wall
 
