@@ -127,3 +127,16 @@ def test_the_preflight_checks_the_torch_device(monkeypatch, tmp_path):
             cls(cls.Params(random_weights=True, device="foo")).check()
         with pytest.raises(BackendUnavailable, match=r"the torch backend runs on cpu or cuda"):
             cls(cls.Params(random_weights=True, device="meta")).check()
+
+
+def test_model_files_are_the_graphs_of_the_export(tmp_path):
+    """A run on an export records its graph files (the manifest's model_files), as a run on a
+    checkpoint records the checkpoint."""
+    torch.manual_seed(4)
+    E.export_mixformerv2(tmp_path / "mf", network=vit.MixFormerV2Net(TINY_MF).eval(), prefix="tiny", seed=4)
+    E.export_ostrack(tmp_path / "os", network=vit.OSTrackNet(TINY_OS).eval(), name="tiny", seed=4)
+    mf = MixFormerV2.model_files(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "mf")))
+    assert mf == {f"onnx_{role}": tmp_path / "mf" / f"tiny{end}.onnx"
+                  for role, end in (("full", ""), ("template", "_template"), ("search", "_search"))}
+    assert OSTrack.model_files(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path / "os"))) == {
+        "onnx_full": tmp_path / "os" / "tiny.onnx"}

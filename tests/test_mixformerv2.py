@@ -418,3 +418,59 @@ def test_random_weights_are_seeded_and_leave_the_global_rng_alone():
     c = MixFormerV2(MixFormerV2.Params(random_weights=True, seed=6)).network()
     assert torch.equal(a.backbone.reg_tokens, b.backbone.reg_tokens)
     assert not torch.equal(a.backbone.reg_tokens, c.backbone.reg_tokens)
+
+
+def _folder_dataset(root, n: int = 3):
+    """One sequence ``s`` of ``n`` textured 240 x 320 frames with a bright square."""
+    import cv2
+
+    seq = root / "s"
+    (seq / "img").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for k in range(n):
+        img = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+        img[100:124, 140 + 2 * k:170 + 2 * k] = 250
+        cv2.imwrite(str(seq / "img" / f"{k:04d}.jpg"), img)
+    np.savetxt(seq / "groundtruth_rect.txt", [[140 + 2 * k, 100, 30, 24] for k in range(n)], delimiter=",")
+
+
+def test_a_run_records_its_checkpoint_and_refuses_results_of_another(tmp_path, monkeypatch):
+    """The checkpoint found through $MATA_MIXFORMERV2_S is in no YAML value: the manifest records
+    its path and sha256, and a rerun with another checkpoint does not resume the old results
+    (QA pass: a rerun with other weights kept the finished sequences)."""
+    import hashlib
+    import json
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import ResultsConflict, run_experiment
+
+    _folder_dataset(tmp_path / "data")
+    a, b = tmp_path / "a" / "mixformerv2_small.pth.tar", tmp_path / "b" / "mixformerv2_small.pth.tar"
+    for seed, path in ((0, a), (1, b)):
+        path.parent.mkdir()
+        torch.save({"net": _documented_small_checkpoint(seed)}, path)
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: mixformerv2, threads: 1}\n")
+    monkeypatch.setenv("MATA_MIXFORMERV2_S", str(a.parent))
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["done"]
+    manifest = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())
+    assert manifest["model_files"] == {"checkpoint": {"path": str(a), "sha256": hashlib.sha256(a.read_bytes()).hexdigest()}}
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["skipped"]
+    monkeypatch.setenv("MATA_MIXFORMERV2_S", str(b.parent))
+    with pytest.raises(ResultsConflict, match=r"another checkpoint file .*a/mixformerv2_small.* than .*b/mixformerv2_small"):
+        run_experiment(load_experiment(exp_file), **quiet)
+
+
+def test_model_files_of_each_configuration(tmp_path, monkeypatch):
+    from mata_eval_plugins.trackers.ostrack import OSTrack
+
+    monkeypatch.setenv("MATA_OSTRACK", str(tmp_path))
+    (tmp_path / "OSTrack_ep0300.pth.tar").write_bytes(b"x")
+    assert OSTrack.model_files(OSTrack.Params()) == {"checkpoint": tmp_path / "OSTrack_ep0300.pth.tar"}
+    assert OSTrack.model_files(OSTrack.Params(random_weights=True)) == {}
+    assert MixFormerV2.model_files(MixFormerV2.Params(random_weights=True)) == {}
+    path = tmp_path / "mine.pth.tar"
+    path.write_bytes(b"x")
+    assert MixFormerV2.model_files(MixFormerV2.Params(variant="B", checkpoint=str(path))) == {"checkpoint": path}

@@ -35,6 +35,7 @@ from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
 from .crop import clip_box, map_box_back, sample_target, usable_prior
+from .model_files import exported_graphs
 from .window_score import pmf_window_score_min
 
 SOURCE = "https://github.com/MCG-NJU/MixFormerV2 (README, model zoo: Google Drive / NJU Box links)"
@@ -171,6 +172,18 @@ class MixFormerV2:
             self._path = checkpoint_path(p.checkpoint, self.variant.env_var, self.variant.file_name, SOURCE)
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
         self._state: Box | None = None
+
+    @classmethod
+    def model_files(cls, params: "MixFormerV2.Params") -> dict[str, Path]:
+        """The weight files these parameters read: the checkpoint (the YAML path, else
+        $MATA_MIXFORMERV2_S / _B), or the graphs of the export; a run's manifest records them and
+        their sha256. Nothing with random weights."""
+        if params.backend != "torch":
+            return exported_graphs(params.onnx, "mixformerv2") if params.onnx else {}
+        if params.random_weights or params.variant not in VARIANTS:
+            return {}
+        v = VARIANTS[params.variant]
+        return {"checkpoint": checkpoint_path(params.checkpoint, v.env_var, v.file_name, SOURCE)}
 
     def check(self) -> None:
         """Preflight: the backend and device can run here (not torch's error on the first frame)."""

@@ -15,6 +15,7 @@ Torch is imported only when the tracker is used (it is an optional extra).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -25,6 +26,7 @@ from mata_eval.types import Box, TrackerOutput
 
 from .crop import clip_box, map_box_back, sample_target, usable_prior
 from .mixformerv2 import _check_image, checkpoint_path
+from .model_files import exported_graphs
 
 SOURCE = "https://github.com/botaoye/OSTrack (README, model zoo: vitb_256_mae_ce_32x4_ep300, Google Drive)"
 FILE_NAME = "OSTrack_ep0300.pth.tar"
@@ -86,6 +88,17 @@ class OSTrack:
         if network is None and not p.random_weights and p.backend == "torch":
             self._path = checkpoint_path(p.checkpoint, ENV_VAR, FILE_NAME, SOURCE)
         self._state: Box | None = None
+
+    @classmethod
+    def model_files(cls, params: "OSTrack.Params") -> dict[str, Path]:
+        """The weight files these parameters read: the checkpoint (the YAML path, else
+        $MATA_OSTRACK), or the graph of the export; a run's manifest records them and their
+        sha256. Nothing with random weights."""
+        if params.backend != "torch":
+            return exported_graphs(params.onnx, "ostrack") if params.onnx else {}
+        if params.random_weights:
+            return {}
+        return {"checkpoint": checkpoint_path(params.checkpoint, ENV_VAR, FILE_NAME, SOURCE)}
 
     def check(self) -> None:
         """Preflight: the backend and device can run here (not torch's error on the first frame)."""
