@@ -67,10 +67,12 @@ def test_ostrack_onnxruntime_follows_torch(tmp_path):
         a, b = ref.track(f, prior), onnx.track(f, prior)
         np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=1e-3)
         assert b.confidence == pytest.approx(a.confidence, abs=1e-5)
-    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
-    t.initialize(frames[0], Box(40, 30, 20, 20))
-    with pytest.raises(ValueError, match="keep ratio"):   # CE is baked into the graph
-        t.track(frames[1])
+    # CE is baked into the graph: another keep ratio is refused when the tracker is built (the
+    # preflight), not in every sequence's first frame (QA pass)
+    with pytest.raises(ValueError, match=r"export.json: the exported graph eliminates candidates at keep ratio 0.7 "
+                                         r".*ce_keep_ratio: 1.0; set ce_keep_ratio: null or backend: torch"):
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
+    OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=0.7))   # the exported one
 
 
 def test_backend_setup_errors_name_what_is_missing(tmp_path):
@@ -84,9 +86,18 @@ def test_backend_setup_errors_name_what_is_missing(tmp_path):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "s"), variant="B"))
     with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export mixformerv2"):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "none")))
-    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
     with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export ostrack"):
-        t.initialize(_frames(1)[0], Box(40, 30, 20, 20))
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
+    # OSTrack on a MixFormerV2 export, and the cache on an export without its two graphs, are
+    # refused when the tracker is built (QA pass: both failed in every sequence's first frame)
+    with pytest.raises(ValueError, match=r"s/export.json: expected a mata-eval export of 'ostrack', got model 'mixformerv2'"):
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path / "s")))
+    E.export_mixformerv2(tmp_path / "full", network=vit.MixFormerV2Net(TINY_MF).eval(), seed=4, forms=("full",))
+    with pytest.raises(ValueError, match=r"full/export.json: template_cache: true runs the template and search graph\(s\), "
+                                         r"but this export has full; set template_cache: false or export them "
+                                         r"\(mata-eval export mixformerv2 --form two-graph or both\)"):
+        MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full")))
+    MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full"), template_cache=False))
 
 
 def test_tensorrt_backend_is_skipped_or_explains(tmp_path):

@@ -474,3 +474,42 @@ def test_model_files_of_each_configuration(tmp_path, monkeypatch):
     path = tmp_path / "mine.pth.tar"
     path.write_bytes(b"x")
     assert MixFormerV2.model_files(MixFormerV2.Params(variant="B", checkpoint=str(path))) == {"checkpoint": path}
+
+
+def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
+    """QA pass: a checkpoint without two tensors passed `validate` and failed every sequence."""
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.preflight import plan
+
+    _folder_dataset(tmp_path / "data", n=2)
+    sd = _documented_small_checkpoint()
+    del sd["backbone.reg_tokens"], sd["score_head.layers.1.weight"]
+    torch.save({"net": sd}, tmp_path / "missing.pth.tar")
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        f"tracker: {{name: mixformerv2, checkpoint: {tmp_path / 'missing.pth.tar'}}}\n")
+    problems = plan(load_experiment(exp_file)).problems
+    assert len(problems) == 1 and "tracker mixformerv2" in problems[0]
+    assert "missing.pth.tar does not match MixFormerV2-S" in problems[0]
+    assert "2 missing key(s): backbone.reg_tokens, score_head.layers.1.weight" in problems[0]
+    torch.save({"net": _documented_small_checkpoint()}, tmp_path / "missing.pth.tar")   # the whole one passes
+    assert plan(load_experiment(exp_file)).problems == ()
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
+    ("window_alpha", ".nan", "window_alpha: expected a number in [0, 1]"),
+    ("search_factor", 0, "search_factor: expected a positive number"),
+    ("update_interval", 0, "update_interval: expected >= 1"),
+])
+def test_out_of_range_parameters_are_refused_when_the_experiment_is_loaded(tmp_path, key, value, expected):
+    """QA pass: window_alpha 1.5 passed `validate` and failed each sequence at its first frame."""
+    from mata_eval.core.params import ConfigError
+    from mata_eval.run.config import load_experiment
+
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: out\ndataset: {{name: folder, root: data}}\n"
+                        f"tracker:\n  name: mixformerv2\n  random_weights: true\n  {key}: {value}\n")
+    with pytest.raises(ConfigError) as e:
+        load_experiment(exp_file)
+    assert "exp.yaml:3" in str(e.value) and expected in str(e.value)

@@ -146,28 +146,32 @@ class MixFormerV2:
         update_interval: int = param(200, "interval mode: frames between installs (upstream: 200 LaSOT, 25 video demo)")
         template_cache: bool = param(True, "cache the template keys/values (exact); recomputed only when the template changes")
 
+        def __post_init__(self) -> None:
+            """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
+            if self.variant not in VARIANTS:
+                raise ValueError(f"mixformerv2: variant: expected one of {', '.join(VARIANTS)}, got {self.variant!r}")
+            for key in ("search_factor", "template_factor"):
+                if not getattr(self, key) > 0:
+                    raise ValueError(f"mixformerv2: {key}: expected a positive number, got {getattr(self, key)!r}")
+            if not 0.0 <= self.window_alpha <= 1.0:
+                raise ValueError(f"mixformerv2: window_alpha: expected a number in [0, 1] (the window's share of "
+                                 f"the PMF's bins), got {self.window_alpha!r}")
+            if not math.isfinite(self.tau_template):
+                raise ValueError(f"mixformerv2: tau_template: expected a finite number, got {self.tau_template!r}")
+            if self.update_interval < 1:
+                raise ValueError(f"mixformerv2: update_interval: expected >= 1, got {self.update_interval!r}")
+
     def __init__(self, params: "MixFormerV2.Params | None" = None, network: Any = None):
         """``network``: an already built ``vit.MixFormerV2Net`` (tests, custom sizes); otherwise it
         is built from ``variant`` and loaded from the checkpoint on first use."""
         self.params = p = params or self.Params()
-        if p.variant not in VARIANTS:
-            raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {p.variant!r}")
-        for name in ("search_factor", "template_factor"):
-            if not getattr(p, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(p, name)}")
         self.variant = VARIANTS[p.variant]
         self._net = network
         self._path = None
         if p.backend != "torch" and network is None and not p.onnx:
             raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export mixformerv2`")
-        if p.backend != "torch" and network is None:   # the export's variant, before any frame
-            from mata_eval.deploy.export import MANIFEST, read_manifest
-
-            exported = read_manifest(p.onnx, "mixformerv2").get("config", {}).get("variant")
-            if exported is not None and exported != p.variant:
-                raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: an export of variant {exported}, but the "
-                                 f"tracker says variant: {p.variant}; set variant: {exported} or export variant "
-                                 f"{p.variant} (mata-eval export mixformerv2 --variant {p.variant})")
+        if p.backend != "torch" and network is None:   # the export fits, before any frame
+            _check_export(p)
         if network is None and not p.random_weights and p.backend == "torch":  # fail early, naming the file
             self._path = checkpoint_path(p.checkpoint, self.variant.env_var, self.variant.file_name, SOURCE)
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
@@ -186,10 +190,24 @@ class MixFormerV2:
         return {"checkpoint": checkpoint_path(params.checkpoint, v.env_var, v.file_name, SOURCE)}
 
     def check(self) -> None:
-        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        """Preflight: the backend and device can run here and the checkpoint's keys and shapes
+        are the variant's (not torch's error, or the loader's, on the first frame)."""
         from .backends import check_device
 
         check_device(self.params.backend, self.params.device)
+        if self._path is not None:
+            import torch
+
+            from . import vit
+
+            with torch.device("meta"):
+                net = vit.MixFormerV2Net(getattr(vit, self.variant.config))
+            vit.matching_state_dict(net, self._path, self._official(), trust_pickle=self.params.trust_pickle)
+
+    def _official(self):
+        from .vit import OfficialCheckpoint
+
+        return OfficialCheckpoint(self.variant.label, self.variant.file_name, SOURCE)
 
     # -- network ---------------------------------------------------------------------------
 
@@ -219,8 +237,7 @@ class MixFormerV2:
                     net = vit.MixFormerV2Net(cfg)
                 net = net.to_empty(device="cpu")
                 net.box_head.bins = torch.arange(cfg.feat_sz, dtype=torch.float32)
-                vit.load_checkpoint(net, self._path, vit.OfficialCheckpoint(self.variant.label, self.variant.file_name, SOURCE),
-                                    trust_pickle=p.trust_pickle)
+                vit.load_checkpoint(net, self._path, self._official(), trust_pickle=p.trust_pickle)
             self._net = net
         self._net.eval().to(self.params.device)
         return self._net
@@ -286,6 +303,27 @@ class MixFormerV2:
         extra.update(zip(("sigma_left", "sigma_top", "sigma_right", "sigma_bottom"),
                          pmf_sigmas_px(pmfs, size / resize_factor)))
         return TrackerOutput(box=self._state, confidence=score, pmfs=pmfs, extra=extra)
+
+
+def _check_export(p: MixFormerV2.Params) -> None:
+    """The export in ``p.onnx`` is of ``p.variant`` and has the graphs ``template_cache`` runs
+    (the two-graph form with the cache, the full graph without); else a ValueError saying what to
+    set or export."""
+    from mata_eval.deploy.export import MANIFEST, read_manifest
+
+    doc, where = read_manifest(p.onnx, "mixformerv2"), Path(p.onnx).expanduser() / MANIFEST
+    exported = doc.get("config", {}).get("variant")
+    if exported is not None and exported != p.variant:
+        raise ValueError(f"{where}: an export of variant {exported}, but the tracker says variant: {p.variant}; set "
+                         f"variant: {exported} or export variant {p.variant} (mata-eval export mixformerv2 --variant "
+                         f"{p.variant})")
+    has = set(doc.get("graphs", {}))
+    needs, form = (("template", "search"), "two-graph") if p.template_cache else (("full",), "full")
+    if not set(needs) <= has:
+        raise ValueError(f"{where}: template_cache: {str(p.template_cache).lower()} runs the {' and '.join(needs)} "
+                         f"graph(s), but this export has {', '.join(sorted(has)) or 'none'}; set template_cache: "
+                         f"{str(not p.template_cache).lower()} or export them (mata-eval export mixformerv2 --form "
+                         f"{form} or both)")
 
 
 def pmf_sigmas_px(pmfs: np.ndarray, crop_side_px: float) -> list[float]:

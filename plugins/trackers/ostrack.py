@@ -72,19 +72,25 @@ class OSTrack:
         ce_keep_ratio: float | None = param(None, "override the keep ratio of the CE blocks (null = 0.7 as trained; 1.0 disables CE)")
         hann_window: bool = param(True, "multiply the score map by the centred Hann window before the argmax (upstream)")
 
+        def __post_init__(self) -> None:
+            """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
+            for key in ("search_factor", "template_factor"):
+                if not getattr(self, key) > 0:
+                    raise ValueError(f"ostrack: {key}: expected a positive number, got {getattr(self, key)!r}")
+            if self.ce_keep_ratio is not None and not 0.0 < self.ce_keep_ratio <= 1.0:
+                raise ValueError(f"ostrack: ce_keep_ratio: expected a number in (0, 1] (1 disables candidate "
+                                 f"elimination) or null, got {self.ce_keep_ratio!r}")
+
     def __init__(self, params: "OSTrack.Params | None" = None, network: Any = None):
         """``network``: an already built ``vit.OSTrackNet`` (tests, custom sizes); otherwise the
         official configuration is built and loaded from the checkpoint on first use."""
         self.params = p = params or self.Params()
-        for name in ("search_factor", "template_factor"):
-            if not getattr(p, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(p, name)}")
-        if p.ce_keep_ratio is not None and not 0.0 < p.ce_keep_ratio <= 1.0:
-            raise ValueError(f"ce_keep_ratio must lie in (0, 1], got {p.ce_keep_ratio}")
         self._net = network
         self._path = None
         if p.backend != "torch" and network is None and not p.onnx:
             raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export ostrack`")
+        if p.backend != "torch" and network is None:   # the export fits, before any frame
+            _check_export(p)
         if network is None and not p.random_weights and p.backend == "torch":
             self._path = checkpoint_path(p.checkpoint, ENV_VAR, FILE_NAME, SOURCE)
         self._state: Box | None = None
@@ -101,10 +107,19 @@ class OSTrack:
         return {"checkpoint": checkpoint_path(params.checkpoint, ENV_VAR, FILE_NAME, SOURCE)}
 
     def check(self) -> None:
-        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        """Preflight: the backend and device can run here and the checkpoint's keys and shapes
+        are OSTrack-256's (not torch's error, or the loader's, on the first frame)."""
         from .backends import check_device
 
         check_device(self.params.backend, self.params.device)
+        if self._path is not None:
+            import torch
+
+            from . import vit
+
+            with torch.device("meta"):
+                net = vit.OSTrackNet(vit.OSTRACK_256)
+            vit.matching_state_dict(net, self._path, _official(), trust_pickle=self.params.trust_pickle)
 
     def network(self):
         """The torch network (built and loaded on first call)."""
@@ -129,8 +144,7 @@ class OSTrack:
                 with torch.device("meta"):
                     net = vit.OSTrackNet(vit.OSTRACK_256)
                 net = net.to_empty(device="cpu")
-                vit.load_checkpoint(net, self._path, vit.OfficialCheckpoint("OSTrack-256 (vitb_256_mae_ce)", FILE_NAME, SOURCE),
-                                    trust_pickle=p.trust_pickle)
+                vit.load_checkpoint(net, self._path, _official(), trust_pickle=p.trust_pickle)
             self._net = net
         self._net.eval().to(self.params.device)
         return self._net
@@ -173,6 +187,24 @@ class OSTrack:
         peak = float(score_map.max())
         return TrackerOutput(box=self._state, confidence=peak, score_map=score_map,
                              extra={"peak_score": peak, "hann_peak": float(response.max())})
+
+
+def _official():
+    from .vit import OfficialCheckpoint
+
+    return OfficialCheckpoint("OSTrack-256 (vitb_256_mae_ce)", FILE_NAME, SOURCE)
+
+
+def _check_export(p: OSTrack.Params) -> None:
+    """The export in ``p.onnx`` is OSTrack's and eliminates candidates at ``ce_keep_ratio`` (baked
+    into the graph); else a ValueError saying what to set."""
+    from mata_eval.deploy.export import MANIFEST, read_manifest
+
+    baked = read_manifest(p.onnx, "ostrack").get("config", {}).get("ce_keep_ratio") or []
+    if p.ce_keep_ratio is not None and any(abs(p.ce_keep_ratio - r) > 1e-9 for r in baked):
+        raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: the exported graph eliminates candidates at keep "
+                         f"ratio {', '.join(map(str, baked))} (fixed in the graph), but the tracker says "
+                         f"ce_keep_ratio: {p.ce_keep_ratio}; set ce_keep_ratio: null or backend: torch")
 
 
 @hookimpl
