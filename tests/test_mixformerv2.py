@@ -358,10 +358,13 @@ def test_track_outputs_and_prior_centres_the_search_region():
     np.testing.assert_allclose(out.pmfs.sum(axis=1), 1.0, atol=1e-6)
     assert 0.0 < out.confidence <= 1.0 and 0.0 < out.extra["mlp_score"] < 1.0
     assert math.dist(out.box.center, box.center) <= 45 / 2 + 1
+    # the search region it cropped (frames.csv's search_*): corner round(105 - 22.5) = 82 (half to even)
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [82, 82, 45, 45]
     trk = _tracker()
     trk.initialize(img, box)
     out = trk.track(img, prior=(300.0, 250.0))  # the MATA feedback moves the search region
     assert math.dist(out.box.center, (300.0, 250.0)) <= 45 / 2 + 1
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [278, 228, 45, 45]   # round(277.5), round(227.5)
 
 
 def test_cached_and_full_trackers_agree():

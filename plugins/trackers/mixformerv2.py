@@ -10,7 +10,8 @@ back to the image and clipped (margin 10 px) as upstream.
 Confidence: ``window`` = ``min_c`` of the probability mass in ``2 round(alpha N / 2) + 1`` bins
 around each PMF's mode, truncated at the edges (alpha = 0.03 -> 3 bins of 96); ``mlp`` = the
 original sigmoid score. The chosen one is reported and gates the template update. ``extra`` also
-holds both scores and each side's PMF standard deviation in image pixels (``sigma_left`` ...).
+holds both scores, each side's PMF standard deviation in image pixels (``sigma_left`` ...) and the
+search square cropped (``search_x`` ...).
 
 Template update (``template_update``): ``threshold`` (paper) replaces the online template by the
 crop at the new box whenever the score exceeds ``tau_template``; ``interval`` is upstream's policy
@@ -34,7 +35,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target, usable_prior
+from .crop import clip_box, map_box_back, sample_target, search_region, usable_prior
 from .model_files import exported_graphs
 from .window_score import pmf_window_score_min
 
@@ -280,6 +281,7 @@ class MixFormerV2:
         size = net.cfg.search_size
         prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
         center = self._state.center if prior is None else prior
+        region = search_region(self._state, p.search_factor, center)
         x, resize_factor = self._crop(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             if p.template_cache:
@@ -299,7 +301,7 @@ class MixFormerV2:
         if commit:
             self._set_online(self._candidate if self._candidate is not None else self._template)
             self._candidate = None
-        extra = {"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit)}
+        extra = {"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit), **region}
         extra.update(zip(("sigma_left", "sigma_top", "sigma_right", "sigma_bottom"),
                          pmf_sigmas_px(pmfs, size / resize_factor)))
         return TrackerOutput(box=self._state, confidence=score, pmfs=pmfs, extra=extra)

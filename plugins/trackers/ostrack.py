@@ -24,7 +24,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target, usable_prior
+from .crop import clip_box, map_box_back, sample_target, search_region, usable_prior
 from .mixformerv2 import _check_image, checkpoint_path
 from .model_files import exported_graphs
 
@@ -176,6 +176,7 @@ class OSTrack:
         size = net.cfg.search_size
         prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
         center = self._state.center if prior is None else prior
+        region = search_region(self._state, p.search_factor, center)
         patch, resize_factor = sample_target(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             score, size_map, offset = net(self._template, image_to_tensor(patch, self._tensor_device()), p.ce_keep_ratio)
@@ -186,7 +187,7 @@ class OSTrack:
         self._state = clip_box(map_box_back(pred * size / resize_factor, center, size, resize_factor), h, w, margin=10)
         peak = float(score_map.max())
         return TrackerOutput(box=self._state, confidence=peak, score_map=score_map,
-                             extra={"peak_score": peak, "hann_peak": float(response.max())})
+                             extra={"peak_score": peak, "hann_peak": float(response.max()), **region})
 
 
 def _official():
