@@ -158,6 +158,9 @@ def test_wrong_variant_is_named(tmp_path):
     assert "mixformerv2_base.pth.tar" in msg and "MixFormerV2-B" in msg
     assert "backbone.pos_embed_s: file (1, 196, 768) vs model (1, 324, 768)" in msg
     assert "missing key(s)" in msg  # blocks 4..7
+    assert msg.endswith("It is a MixFormerV2-S checkpoint: set variant: S")   # the fix, named
+    with pytest.raises(vit.CheckpointError, match="set variant: S$"):   # by the preflight too
+        trk.check()
 
 
 def test_missing_checkpoint_names_file_and_source(tmp_path, monkeypatch):

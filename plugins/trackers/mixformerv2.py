@@ -197,18 +197,23 @@ class MixFormerV2:
 
         check_device(self.params.backend, self.params.device)
         if self._path is not None:
-            import torch
+            self._checkpoint()
 
-            from . import vit
+    def _checkpoint(self, net=None) -> dict:
+        """The checkpoint's state_dict, checked key by key and shape by shape against ``net`` (by
+        default the variant's network on the ``meta`` device); a checkpoint of the other variant
+        is named with the ``variant:`` to set."""
+        from .vit import CheckpointError
 
-            with torch.device("meta"):
-                net = vit.MixFormerV2Net(getattr(vit, self.variant.config))
-            vit.matching_state_dict(net, self._path, self._official(), trust_pickle=self.params.trust_pickle)
-
-    def _official(self):
-        from .vit import OfficialCheckpoint
-
-        return OfficialCheckpoint(self.variant.label, self.variant.file_name, SOURCE)
+        p = self.params
+        try:
+            return _matching_state_dict(self._path, p.variant, p.trust_pickle, net)
+        except CheckpointError as exc:
+            fits = [k for k in VARIANTS if k != p.variant and _fits(self._path, k, p.trust_pickle)]
+            if fits:
+                raise CheckpointError(f"{exc}. It is a {VARIANTS[fits[0]].label} checkpoint: set variant: "
+                                      f"{fits[0]}") from None
+            raise
 
     # -- network ---------------------------------------------------------------------------
 
@@ -238,7 +243,7 @@ class MixFormerV2:
                     net = vit.MixFormerV2Net(cfg)
                 net = net.to_empty(device="cpu")
                 net.box_head.bins = torch.arange(cfg.feat_sz, dtype=torch.float32)
-                vit.load_checkpoint(net, self._path, self._official(), trust_pickle=p.trust_pickle)
+                net.load_state_dict(self._checkpoint(net), strict=True)
             self._net = net
         self._net.eval().to(self.params.device)
         return self._net
@@ -305,6 +310,30 @@ class MixFormerV2:
         extra.update(zip(("sigma_left", "sigma_top", "sigma_right", "sigma_bottom"),
                          pmf_sigmas_px(pmfs, size / resize_factor)))
         return TrackerOutput(box=self._state, confidence=score, pmfs=pmfs, extra=extra)
+
+
+def _matching_state_dict(path: Path, variant: str, trust_pickle: bool, net=None) -> dict:
+    """``vit.matching_state_dict`` against ``net``, by default ``variant``'s on the ``meta`` device."""
+    import torch
+
+    from . import vit
+
+    v = VARIANTS[variant]
+    if net is None:
+        with torch.device("meta"):
+            net = vit.MixFormerV2Net(getattr(vit, v.config))
+    return vit.matching_state_dict(net, path, vit.OfficialCheckpoint(v.label, v.file_name, SOURCE), trust_pickle)
+
+
+def _fits(path: Path, variant: str, trust_pickle: bool) -> bool:
+    """Whether the checkpoint has exactly ``variant``'s keys and shapes."""
+    from .vit import CheckpointError
+
+    try:
+        _matching_state_dict(path, variant, trust_pickle)
+    except CheckpointError:
+        return False
+    return True
 
 
 def _check_export(p: MixFormerV2.Params) -> None:
