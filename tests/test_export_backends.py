@@ -151,3 +151,28 @@ def test_model_files_are_the_graphs_of_the_export(tmp_path):
                   for role, end in (("full", ""), ("template", "_template"), ("search", "_search"))}
     assert OSTrack.model_files(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path / "os"))) == {
         "onnx_full": tmp_path / "os" / "tiny.onnx"}
+
+
+def test_a_run_on_another_models_export_fails_its_sequences_not_the_experiment(tmp_path):
+    """Recording the model files read (manifest.json) must not stop the experiment when an
+    export.json is of another model: that run's sequences fail with the reason, the others run."""
+    import cv2
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import run_experiment
+
+    torch.manual_seed(4)
+    E.export_mixformerv2(tmp_path / "mf", network=vit.MixFormerV2Net(TINY_MF).eval(), seed=4)
+    seq = tmp_path / "data" / "s" / "img"
+    seq.mkdir(parents=True)
+    for k, f in enumerate(_frames(3)):
+        cv2.imwrite(str(seq / f"{k:04d}.png"), f)
+    (seq.parent / "groundtruth_rect.txt").write_text("".join(f"{40 + 3 * k},{30 + 2 * k},20,20\n" for k in range(3)))
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: kcf}\nmatrix:\n  tracker:\n    kcf: {}\n"
+                        f"    os: {{name: ostrack, backend: onnxruntime, onnx: {tmp_path / 'mf'}}}\n")
+    outcomes = run_experiment(load_experiment(exp_file), jobs=1, progress=False, log=lambda s: None)
+    assert {o.run: o.status for o in outcomes} == {"kcf": "done", "os": "failed"}
+    assert "expected a mata-eval export of 'ostrack', got model 'mixformerv2'" in next(o.reason for o in outcomes
+                                                                                       if o.run == "os")
