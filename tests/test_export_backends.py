@@ -69,8 +69,8 @@ def test_ostrack_onnxruntime_follows_torch(tmp_path):
         assert b.confidence == pytest.approx(a.confidence, abs=1e-5)
     # CE is baked into the graph: another keep ratio is refused when the tracker is built (the
     # preflight), not in every sequence's first frame (QA pass)
-    with pytest.raises(ValueError, match=r"export.json: the exported graph eliminates candidates at keep ratio 0.7 "
-                                         r".*ce_keep_ratio: 1.0; set ce_keep_ratio: null or backend: torch"):
+    with pytest.raises(ValueError, match=r"export.json: the exported graph eliminates candidates at keep ratio 0.7 \(fixed in the graph\), but the tracker says "
+                                         r"ce_keep_ratio: 1.0; set ce_keep_ratio: null or backend: torch"):
         OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
     OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=0.7))   # the exported one
 

@@ -204,7 +204,7 @@ def _check_export(p: OSTrack.Params) -> None:
     baked = read_manifest(p.onnx, "ostrack").get("config", {}).get("ce_keep_ratio") or []
     if p.ce_keep_ratio is not None and any(abs(p.ce_keep_ratio - r) > 1e-9 for r in baked):
         raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: the exported graph eliminates candidates at keep "
-                         f"ratio {', '.join(map(str, baked))} (fixed in the graph), but the tracker says "
+                         f"ratio {', '.join(sorted({str(r) for r in baked}))} (fixed in the graph), but the tracker says "
                          f"ce_keep_ratio: {p.ce_keep_ratio}; set ce_keep_ratio: null or backend: torch")
 
 
