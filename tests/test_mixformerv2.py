@@ -502,20 +502,23 @@ def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
     assert plan(load_experiment(exp_file)).problems == ()
 
 
-@pytest.mark.parametrize("key, value, expected", [
-    ("window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
-    ("window_alpha", ".nan", "window_alpha: expected a number in [0, 1]"),
-    ("search_factor", 0, "search_factor: expected a positive number"),
-    ("update_interval", 0, "update_interval: expected >= 1"),
+@pytest.mark.parametrize("tracker, key, value, expected", [
+    ("mixformerv2", "window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
+    ("mixformerv2", "window_alpha", ".nan", "window_alpha: expected a number in [0, 1]"),
+    ("mixformerv2", "search_factor", 0, "search_factor: expected a positive number"),
+    ("mixformerv2", "update_interval", 0, "update_interval: expected >= 1"),
+    ("ostrack", "ce_keep_ratio", 1.5, "ce_keep_ratio: expected a number in (0, 1]"),
+    ("vittrack", "window_alpha", -0.1, "window_alpha: expected a number in [0, 1]"),
+    ("nanotrack", "window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
 ])
-def test_out_of_range_parameters_are_refused_when_the_experiment_is_loaded(tmp_path, key, value, expected):
+def test_out_of_range_parameters_are_refused_when_the_experiment_is_loaded(tmp_path, tracker, key, value, expected):
     """QA pass: window_alpha 1.5 passed `validate` and failed each sequence at its first frame."""
     from mata_eval.core.params import ConfigError
     from mata_eval.run.config import load_experiment
 
     exp_file = tmp_path / "exp.yaml"
     exp_file.write_text(f"output: out\ndataset: {{name: folder, root: data}}\n"
-                        f"tracker:\n  name: mixformerv2\n  random_weights: true\n  {key}: {value}\n")
+                        f"tracker:\n  name: {tracker}\n  {key}: {value}\n")
     with pytest.raises(ConfigError) as e:
         load_experiment(exp_file)
     assert "exp.yaml:3" in str(e.value) and expected in str(e.value)
