@@ -198,6 +198,29 @@ def test_a_parameter_the_kernel_does_not_implement_falls_back_to_numpy(monkeypat
         HomographyEKF(P(preset="mata"), backend="numba")
 
 
+class TenfoldR(HomographyEKF):
+    """A subclass with its own measurement noise (a plugin author's override)."""
+
+    def _box_noise(self, x, relative_conf):
+        return 10.0 * super()._box_noise(x, relative_conf)
+
+
+def test_a_subclass_overriding_a_tick_method_runs_it_on_either_backend_or_is_refused(monkeypatch):
+    """QA pass: a subclass's _box_noise was silently ignored on the numba path (the kernel
+    computes R itself); auto now runs such a subclass on numpy, and numba is refused."""
+    monkeypatch.delenv("MATA_EVAL_EKF_BACKEND", raising=False)
+    ticks = scenario(0, n=40)
+    plain, _ = run(HomographyEKF(P(preset="mata"), backend="numpy"), ticks)
+    ref, _ = run(TenfoldR(P(preset="mata"), backend="numpy"), ticks)
+    assert np.nanmax(np.abs(ref - plain)) > 1.0          # the override changes the estimates
+    auto = TenfoldR(P(preset="mata"))
+    assert auto._kernel is None
+    boxes, _ = run(auto, ticks)
+    np.testing.assert_array_equal(boxes, ref)
+    with pytest.raises(ValueError, match=r"backend numba .* would ignore the subclass's _box_noise; use backend numpy"):
+        TenfoldR(P(preset="mata"), backend="numba")
+
+
 def test_the_filter_runs_without_numba(monkeypatch):
     """Without numba (a core install) the numpy path runs; asking for numba says what to install."""
     monkeypatch.delenv("MATA_EVAL_EKF_BACKEND", raising=False)

@@ -67,10 +67,12 @@ def test_ostrack_onnxruntime_follows_torch(tmp_path):
         a, b = ref.track(f, prior), onnx.track(f, prior)
         np.testing.assert_allclose(b.box.as_array(), a.box.as_array(), atol=1e-3)
         assert b.confidence == pytest.approx(a.confidence, abs=1e-5)
-    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
-    t.initialize(frames[0], Box(40, 30, 20, 20))
-    with pytest.raises(ValueError, match="keep ratio"):   # CE is baked into the graph
-        t.track(frames[1])
+    # CE is baked into the graph: another keep ratio is refused when the tracker is built (the
+    # preflight), not in every sequence's first frame (QA pass)
+    with pytest.raises(ValueError, match=r"export.json: the exported graph eliminates candidates at keep ratio 0.7 \(fixed in the graph\), but the tracker says "
+                                         r"ce_keep_ratio: 1.0; set ce_keep_ratio: null or backend: torch"):
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=1.0))
+    OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path), ce_keep_ratio=0.7))   # the exported one
 
 
 def test_backend_setup_errors_name_what_is_missing(tmp_path):
@@ -84,9 +86,18 @@ def test_backend_setup_errors_name_what_is_missing(tmp_path):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "s"), variant="B"))
     with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export mixformerv2"):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "none")))
-    t = OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
     with pytest.raises(FileNotFoundError, match="export.json not found.*mata-eval export ostrack"):
-        t.initialize(_frames(1)[0], Box(40, 30, 20, 20))
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path)))
+    # OSTrack on a MixFormerV2 export, and the cache on an export without its two graphs, are
+    # refused when the tracker is built (QA pass: both failed in every sequence's first frame)
+    with pytest.raises(ValueError, match=r"s/export.json: expected a mata-eval export of 'ostrack', got model 'mixformerv2'"):
+        OSTrack(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path / "s")))
+    E.export_mixformerv2(tmp_path / "full", network=vit.MixFormerV2Net(TINY_MF).eval(), seed=4, forms=("full",))
+    with pytest.raises(ValueError, match=r"full/export.json: template_cache: true runs the template and search graph\(s\), "
+                                         r"but this export has full; set template_cache: false or export them "
+                                         r"\(mata-eval export mixformerv2 --form two-graph or both\)"):
+        MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full")))
+    MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full"), template_cache=False))
 
 
 def test_tensorrt_backend_is_skipped_or_explains(tmp_path):
@@ -127,3 +138,41 @@ def test_the_preflight_checks_the_torch_device(monkeypatch, tmp_path):
             cls(cls.Params(random_weights=True, device="foo")).check()
         with pytest.raises(BackendUnavailable, match=r"the torch backend runs on cpu or cuda"):
             cls(cls.Params(random_weights=True, device="meta")).check()
+
+
+def test_model_files_are_the_graphs_of_the_export(tmp_path):
+    """A run on an export records its graph files (the manifest's model_files), as a run on a
+    checkpoint records the checkpoint."""
+    torch.manual_seed(4)
+    E.export_mixformerv2(tmp_path / "mf", network=vit.MixFormerV2Net(TINY_MF).eval(), prefix="tiny", seed=4)
+    E.export_ostrack(tmp_path / "os", network=vit.OSTrackNet(TINY_OS).eval(), name="tiny", seed=4)
+    mf = MixFormerV2.model_files(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "mf")))
+    assert mf == {f"onnx_{role}": tmp_path / "mf" / f"tiny{end}.onnx"
+                  for role, end in (("full", ""), ("template", "_template"), ("search", "_search"))}
+    assert OSTrack.model_files(OSTrack.Params(backend="onnxruntime", onnx=str(tmp_path / "os"))) == {
+        "onnx_full": tmp_path / "os" / "tiny.onnx"}
+
+
+def test_a_run_on_another_models_export_fails_its_sequences_not_the_experiment(tmp_path):
+    """Recording the model files read (manifest.json) must not stop the experiment when an
+    export.json is of another model: that run's sequences fail with the reason, the others run."""
+    import cv2
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import run_experiment
+
+    torch.manual_seed(4)
+    E.export_mixformerv2(tmp_path / "mf", network=vit.MixFormerV2Net(TINY_MF).eval(), seed=4)
+    seq = tmp_path / "data" / "s" / "img"
+    seq.mkdir(parents=True)
+    for k, f in enumerate(_frames(3)):
+        cv2.imwrite(str(seq / f"{k:04d}.png"), f)
+    (seq.parent / "groundtruth_rect.txt").write_text("".join(f"{40 + 3 * k},{30 + 2 * k},20,20\n" for k in range(3)))
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: kcf}\nmatrix:\n  tracker:\n    kcf: {}\n"
+                        f"    os: {{name: ostrack, backend: onnxruntime, onnx: {tmp_path / 'mf'}}}\n")
+    outcomes = run_experiment(load_experiment(exp_file), jobs=1, progress=False, log=lambda s: None)
+    assert {o.run: o.status for o in outcomes} == {"kcf": "done", "os": "failed"}
+    assert "expected a mata-eval export of 'ostrack', got model 'mixformerv2'" in next(o.reason for o in outcomes
+                                                                                       if o.run == "os")

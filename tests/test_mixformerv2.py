@@ -158,6 +158,9 @@ def test_wrong_variant_is_named(tmp_path):
     assert "mixformerv2_base.pth.tar" in msg and "MixFormerV2-B" in msg
     assert "backbone.pos_embed_s: file (1, 196, 768) vs model (1, 324, 768)" in msg
     assert "missing key(s)" in msg  # blocks 4..7
+    assert msg.endswith("It is a MixFormerV2-S checkpoint: set variant: S")   # the fix, named
+    with pytest.raises(vit.CheckpointError, match="set variant: S$"):   # by the preflight too
+        trk.check()
 
 
 def test_missing_checkpoint_names_file_and_source(tmp_path, monkeypatch):
@@ -358,10 +361,13 @@ def test_track_outputs_and_prior_centres_the_search_region():
     np.testing.assert_allclose(out.pmfs.sum(axis=1), 1.0, atol=1e-6)
     assert 0.0 < out.confidence <= 1.0 and 0.0 < out.extra["mlp_score"] < 1.0
     assert math.dist(out.box.center, box.center) <= 45 / 2 + 1
+    # the search region it cropped (frames.csv's search_*): corner round(105 - 22.5) = 82 (half to even)
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [82, 82, 45, 45]
     trk = _tracker()
     trk.initialize(img, box)
     out = trk.track(img, prior=(300.0, 250.0))  # the MATA feedback moves the search region
     assert math.dist(out.box.center, (300.0, 250.0)) <= 45 / 2 + 1
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [278, 228, 45, 45]   # round(277.5), round(227.5)
 
 
 def test_cached_and_full_trackers_agree():
@@ -418,3 +424,101 @@ def test_random_weights_are_seeded_and_leave_the_global_rng_alone():
     c = MixFormerV2(MixFormerV2.Params(random_weights=True, seed=6)).network()
     assert torch.equal(a.backbone.reg_tokens, b.backbone.reg_tokens)
     assert not torch.equal(a.backbone.reg_tokens, c.backbone.reg_tokens)
+
+
+def _folder_dataset(root, n: int = 3):
+    """One sequence ``s`` of ``n`` textured 240 x 320 frames with a bright square."""
+    import cv2
+
+    seq = root / "s"
+    (seq / "img").mkdir(parents=True)
+    rng = np.random.default_rng(0)
+    for k in range(n):
+        img = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
+        img[100:124, 140 + 2 * k:170 + 2 * k] = 250
+        cv2.imwrite(str(seq / "img" / f"{k:04d}.jpg"), img)
+    np.savetxt(seq / "groundtruth_rect.txt", [[140 + 2 * k, 100, 30, 24] for k in range(n)], delimiter=",")
+
+
+def test_a_run_records_its_checkpoint_and_refuses_results_of_another(tmp_path, monkeypatch):
+    """The checkpoint found through $MATA_MIXFORMERV2_S is in no YAML value: the manifest records
+    its path and sha256, and a rerun with another checkpoint does not resume the old results
+    (QA pass: a rerun with other weights kept the finished sequences)."""
+    import hashlib
+    import json
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import ResultsConflict, run_experiment
+
+    _folder_dataset(tmp_path / "data")
+    a, b = tmp_path / "a" / "mixformerv2_small.pth.tar", tmp_path / "b" / "mixformerv2_small.pth.tar"
+    for seed, path in ((0, a), (1, b)):
+        path.parent.mkdir()
+        torch.save({"net": _documented_small_checkpoint(seed)}, path)
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: mixformerv2, threads: 1}\n")
+    monkeypatch.setenv("MATA_MIXFORMERV2_S", str(a.parent))
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["done"]
+    manifest = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())
+    assert manifest["model_files"] == {"checkpoint": {"path": str(a), "sha256": hashlib.sha256(a.read_bytes()).hexdigest()}}
+    assert [o.status for o in run_experiment(load_experiment(exp_file), **quiet)] == ["skipped"]
+    monkeypatch.setenv("MATA_MIXFORMERV2_S", str(b.parent))
+    with pytest.raises(ResultsConflict, match=r"another checkpoint file .*a/mixformerv2_small.* than .*b/mixformerv2_small"):
+        run_experiment(load_experiment(exp_file), **quiet)
+
+
+def test_model_files_of_each_configuration(tmp_path, monkeypatch):
+    from mata_eval_plugins.trackers.ostrack import OSTrack
+
+    monkeypatch.setenv("MATA_OSTRACK", str(tmp_path))
+    (tmp_path / "OSTrack_ep0300.pth.tar").write_bytes(b"x")
+    assert OSTrack.model_files(OSTrack.Params()) == {"checkpoint": tmp_path / "OSTrack_ep0300.pth.tar"}
+    assert OSTrack.model_files(OSTrack.Params(random_weights=True)) == {}
+    assert MixFormerV2.model_files(MixFormerV2.Params(random_weights=True)) == {}
+    path = tmp_path / "mine.pth.tar"
+    path.write_bytes(b"x")
+    assert MixFormerV2.model_files(MixFormerV2.Params(variant="B", checkpoint=str(path))) == {"checkpoint": path}
+
+
+def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
+    """QA pass: a checkpoint without two tensors passed `validate` and failed every sequence."""
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.preflight import plan
+
+    _folder_dataset(tmp_path / "data", n=2)
+    sd = _documented_small_checkpoint()
+    del sd["backbone.reg_tokens"], sd["score_head.layers.1.weight"]
+    torch.save({"net": sd}, tmp_path / "missing.pth.tar")
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        f"tracker: {{name: mixformerv2, checkpoint: {tmp_path / 'missing.pth.tar'}}}\n")
+    problems = plan(load_experiment(exp_file)).problems
+    assert len(problems) == 1 and "tracker mixformerv2" in problems[0]
+    assert "missing.pth.tar does not match MixFormerV2-S" in problems[0]
+    assert "2 missing key(s): backbone.reg_tokens, score_head.layers.1.weight" in problems[0]
+    torch.save({"net": _documented_small_checkpoint()}, tmp_path / "missing.pth.tar")   # the whole one passes
+    assert plan(load_experiment(exp_file)).problems == ()
+
+
+@pytest.mark.parametrize("tracker, key, value, expected", [
+    ("mixformerv2", "window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
+    ("mixformerv2", "window_alpha", ".nan", "window_alpha: expected a number in [0, 1]"),
+    ("mixformerv2", "search_factor", 0, "search_factor: expected a positive number"),
+    ("mixformerv2", "update_interval", 0, "update_interval: expected >= 1"),
+    ("ostrack", "ce_keep_ratio", 1.5, "ce_keep_ratio: expected a number in (0, 1]"),
+    ("vittrack", "window_alpha", -0.1, "window_alpha: expected a number in [0, 1]"),
+    ("nanotrack", "window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
+])
+def test_out_of_range_parameters_are_refused_when_the_experiment_is_loaded(tmp_path, tracker, key, value, expected):
+    """QA pass: window_alpha 1.5 passed `validate` and failed each sequence at its first frame."""
+    from mata_eval.core.params import ConfigError
+    from mata_eval.run.config import load_experiment
+
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: out\ndataset: {{name: folder, root: data}}\n"
+                        f"tracker:\n  name: {tracker}\n  {key}: {value}\n")
+    with pytest.raises(ConfigError) as e:
+        load_experiment(exp_file)
+    assert "exp.yaml:3" in str(e.value) and expected in str(e.value)

@@ -168,10 +168,12 @@ def test_tracker_outputs_and_prior():
     assert out.confidence == pytest.approx(float(out.score_map.max()))  # raw sigmoid peak
     assert out.extra["peak_score"] == out.confidence and out.extra["hann_peak"] <= out.confidence
     assert math.dist(out.box.center, box.center) <= 48 / 2 * math.sqrt(2) + 1
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [82, 82, 48, 48]   # the crop: 106 - 48 / 2
     trk = OSTrack(OSTrack.Params(), network=net)
     trk.initialize(img, box)
     out = trk.track(img, prior=(350.0, 300.0))
     assert math.dist(out.box.center, (350.0, 300.0)) <= 48 / 2 * math.sqrt(2) + 1
+    assert [out.extra[f"search_{c}"] for c in "xywh"] == [326, 276, 48, 48]  # centred on the prior
 
 
 def test_tracker_box_follows_the_hann_weighted_peak():

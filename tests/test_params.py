@@ -123,3 +123,9 @@ def test_a_number_yaml_reads_as_text_gets_a_hint():
         build_params(Rate, yaml.safe_load("{fps: 3e1}"))
     with pytest.raises(ConfigError, match=r"got 'fast' \(str\)$"):
         build_params(Rate, {"fps": "fast"})
+    # YAML spells NaN and the infinities .nan, .inf, -.inf (QA pass: the hint said 'write nan or nan')
+    for typed, spelling in (("nan", ".nan"), ("inf", ".inf"), ("-Infinity", "-.inf")):
+        with pytest.raises(ConfigError, match=rf"YAML reads {typed} as text \(write {spelling}\)$"):
+            build_params(Rate, yaml.safe_load(f"{{fps: {typed}}}"))
+        assert repr(build_params(Rate, yaml.safe_load(f"{{fps: {spelling}}}")).fps) == repr(float(typed))   # the spelling works
+

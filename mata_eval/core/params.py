@@ -13,6 +13,7 @@ Example::
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, Callable, Literal, Mapping
@@ -112,11 +113,15 @@ def _coerce(value: Any, tp: Any, kp: tuple, where: Callable) -> Any:
         hint = ""
         if isinstance(value, str) and "float" in _type_name(tp):
             try:
-                float(value)
-                hint = (f"; YAML reads {value} as text (an exponent needs a dot and a sign there: "
-                        f"write {float(value)!r} or {float(value):.1e})")
+                number = float(value)
             except ValueError:
-                pass
+                number = None
+            if number is not None and math.isfinite(number):
+                hint = (f"; YAML reads {value} as text (an exponent needs a dot and a sign there: "
+                        f"write {number!r} or {number:.1e})")
+            elif number is not None:   # YAML spells these .nan, .inf and -.inf
+                spelling = ".nan" if math.isnan(number) else ".inf" if number > 0 else "-.inf"
+                hint = f"; YAML reads {value} as text (write {spelling})"
         raise ConfigError(where(kp), kp, f"expected {_type_name(tp)}, got {value!r} ({type(value).__name__}){hint}")
 
     origin = typing.get_origin(tp)

@@ -82,7 +82,7 @@ def model_files(spec: RunSpec) -> dict[str, dict[str, str]]:
     try:
         paths = files(spec.tracker.params) if files is not None else {}
         return {key: {"path": str(p), "sha256": results.file_sha256(p)} for key, p in paths.items()}
-    except OSError:
+    except (OSError, ValueError):   # e.g. an unreadable export.json
         return {}
 
 

@@ -37,6 +37,9 @@ from . import ekf_math as em
 
 BACKENDS = ("auto", "numpy", "numba")
 BACKEND_ENV = "MATA_EVAL_EKF_BACKEND"  # overrides ``auto``: numpy or numba for every preset
+# the methods of a tick that the compiled kernel does itself: a subclass overriding one runs numpy
+TICK_METHODS = ("_tick_state", "_velocity_prior", "_process_noise", "_update_motion", "_motion_measurement",
+                "_update_detection", "_innovation_average", "_gate_detection", "_box_noise")
 N_DERIV = {"cv": 1, "ca": 2, "cj": 3}
 EPS_T = 1e-6  # seconds: two times closer than this are the same camera frame
 CONFIDENCE_HISTORY = 100  # accepted confidences behind the relative gate's median (10 s at 10 Hz)
@@ -353,7 +356,8 @@ class HomographyEKF:
         self._p0 = np.diag(np.concatenate([np.full(4, p.p0_box), h_p0, np.repeat(dp, 2)]))
         self._h_floor = np.asarray(p.r_h_floor, float)
         self._ticks: list[_Tick] = []
-        kernels = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p)
+        overridden = [m for m in TICK_METHODS if getattr(type(self), m) is not getattr(HomographyEKF, m)]
+        kernels = _compiled_tick(backend or os.environ.get(BACKEND_ENV) or "auto", p, overridden)
         # the compiled tick (a numba dispatcher, picklable like the filter) or None for numpy
         self._kernel = None if kernels is None else kernels.tick
         self._state, self._gate0 = FilterState, GateState()   # a tick's state record, the first gate
@@ -806,12 +810,16 @@ def _t_capture(s: Stamped) -> float:
     return s.t_capture
 
 
-def _compiled_tick(backend: str, params: HomographyEKF.Params):
+def _compiled_tick(backend: str, params: HomographyEKF.Params, overridden: Sequence[str] = ()):
     """The ekf_kernels module for the numba backend, or None for the numpy reference: with
-    ``auto``, numba for preset mata when it is installed and implements every parameter."""
+    ``auto``, numba for preset mata when it is installed, implements every parameter and no
+    method of the tick is ``overridden`` by a subclass (the kernel would ignore it)."""
     if backend not in BACKENDS:
         raise ValueError(f"homography_ekf: backend (or ${BACKEND_ENV}) must be one of {BACKENDS}, got {backend!r}")
-    if backend == "numpy" or (backend == "auto" and params.preset == "paper"):
+    if overridden and backend == "numba":
+        raise ValueError(f"homography_ekf: backend numba computes the tick in compiled code, which would ignore the "
+                         f"subclass's {', '.join(overridden)}; use backend numpy (auto does)")
+    if backend == "numpy" or overridden or (backend == "auto" and params.preset == "paper"):
         return None
     try:
         from . import ekf_kernels

@@ -62,6 +62,14 @@ def sample_target(image: np.ndarray, box: Box | Sequence[float], factor: float, 
     ``x1 = round(cx - crop_sz / 2)``, same for y; out-of-image parts are black (zeros).
     Returns ``(patch, resize_factor)`` with ``resize_factor = output_size / crop_sz``.
     """
+    x1, y1, crop_sz = crop_window(box, factor, center)
+    patch = crop_square(image, x1, y1, crop_sz, int(output_size))
+    return patch, output_size / crop_sz
+
+
+def crop_window(box: Box | Sequence[float], factor: float,
+                center: tuple[float, float] | None = None) -> tuple[int, int, int]:
+    """The square :func:`sample_target` crops, in image pixels: ``(x1, y1, crop_sz)``."""
     x, y, w, h = _xywh(box)
     if not (w > 0 and h > 0 and math.isfinite(w * h)):
         raise ValueError(f"sample_target needs a box with positive finite size, got {(x, y, w, h)}")
@@ -69,10 +77,15 @@ def sample_target(image: np.ndarray, box: Box | Sequence[float], factor: float, 
     if crop_sz < 1:
         raise ValueError(f"box {(x, y, w, h)} with factor {factor} gives an empty crop")
     cx, cy = (x + 0.5 * w, y + 0.5 * h) if center is None else (float(center[0]), float(center[1]))
-    x1 = round(cx - 0.5 * crop_sz)
-    y1 = round(cy - 0.5 * crop_sz)
-    patch = crop_square(image, int(x1), int(y1), int(crop_sz), int(output_size))
-    return patch, output_size / crop_sz
+    return int(round(cx - 0.5 * crop_sz)), int(round(cy - 0.5 * crop_sz)), int(crop_sz)
+
+
+def search_region(box: Box | Sequence[float], factor: float,
+                  center: tuple[float, float] | None = None) -> dict[str, float]:
+    """The ``extra`` keys ``search_x, search_y, search_w, search_h`` of that square (a run's
+    frames.csv records them)."""
+    x1, y1, side = crop_window(box, factor, center)
+    return {"search_x": float(x1), "search_y": float(y1), "search_w": float(side), "search_h": float(side)}
 
 
 def map_box_back(pred_box: Sequence[float], prev_center: tuple[float, float], search_size: int,

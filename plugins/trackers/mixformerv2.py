@@ -10,7 +10,8 @@ back to the image and clipped (margin 10 px) as upstream.
 Confidence: ``window`` = ``min_c`` of the probability mass in ``2 round(alpha N / 2) + 1`` bins
 around each PMF's mode, truncated at the edges (alpha = 0.03 -> 3 bins of 96); ``mlp`` = the
 original sigmoid score. The chosen one is reported and gates the template update. ``extra`` also
-holds both scores and each side's PMF standard deviation in image pixels (``sigma_left`` ...).
+holds both scores, each side's PMF standard deviation in image pixels (``sigma_left`` ...) and the
+search square cropped (``search_x`` ...).
 
 Template update (``template_update``): ``threshold`` (paper) replaces the online template by the
 crop at the new box whenever the score exceeds ``tau_template``; ``interval`` is upstream's policy
@@ -34,7 +35,8 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target, usable_prior
+from .crop import clip_box, map_box_back, sample_target, search_region, usable_prior
+from .model_files import exported_graphs
 from .window_score import pmf_window_score_min
 
 SOURCE = "https://github.com/MCG-NJU/MixFormerV2 (README, model zoo: Google Drive / NJU Box links)"
@@ -145,38 +147,73 @@ class MixFormerV2:
         update_interval: int = param(200, "interval mode: frames between installs (upstream: 200 LaSOT, 25 video demo)")
         template_cache: bool = param(True, "cache the template keys/values (exact); recomputed only when the template changes")
 
+        def __post_init__(self) -> None:
+            """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
+            if self.variant not in VARIANTS:
+                raise ValueError(f"mixformerv2: variant: expected one of {', '.join(VARIANTS)}, got {self.variant!r}")
+            for key in ("search_factor", "template_factor"):
+                if not getattr(self, key) > 0:
+                    raise ValueError(f"mixformerv2: {key}: expected a positive number, got {getattr(self, key)!r}")
+            if not 0.0 <= self.window_alpha <= 1.0:
+                raise ValueError(f"mixformerv2: window_alpha: expected a number in [0, 1] (the window's share of "
+                                 f"the PMF's bins), got {self.window_alpha!r}")
+            if not math.isfinite(self.tau_template):
+                raise ValueError(f"mixformerv2: tau_template: expected a finite number, got {self.tau_template!r}")
+            if self.update_interval < 1:
+                raise ValueError(f"mixformerv2: update_interval: expected >= 1, got {self.update_interval!r}")
+
     def __init__(self, params: "MixFormerV2.Params | None" = None, network: Any = None):
         """``network``: an already built ``vit.MixFormerV2Net`` (tests, custom sizes); otherwise it
         is built from ``variant`` and loaded from the checkpoint on first use."""
         self.params = p = params or self.Params()
-        if p.variant not in VARIANTS:
-            raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {p.variant!r}")
-        for name in ("search_factor", "template_factor"):
-            if not getattr(p, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(p, name)}")
         self.variant = VARIANTS[p.variant]
         self._net = network
         self._path = None
         if p.backend != "torch" and network is None and not p.onnx:
             raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export mixformerv2`")
-        if p.backend != "torch" and network is None:   # the export's variant, before any frame
-            from mata_eval.deploy.export import MANIFEST, read_manifest
-
-            exported = read_manifest(p.onnx, "mixformerv2").get("config", {}).get("variant")
-            if exported is not None and exported != p.variant:
-                raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: an export of variant {exported}, but the "
-                                 f"tracker says variant: {p.variant}; set variant: {exported} or export variant "
-                                 f"{p.variant} (mata-eval export mixformerv2 --variant {p.variant})")
+        if p.backend != "torch" and network is None:   # the export fits, before any frame
+            _check_export(p)
         if network is None and not p.random_weights and p.backend == "torch":  # fail early, naming the file
             self._path = checkpoint_path(p.checkpoint, self.variant.env_var, self.variant.file_name, SOURCE)
         self._schedule = TemplateSchedule(p.template_update, p.tau_template, p.update_interval)
         self._state: Box | None = None
 
+    @classmethod
+    def model_files(cls, params: "MixFormerV2.Params") -> dict[str, Path]:
+        """The weight files these parameters read: the checkpoint (the YAML path, else
+        $MATA_MIXFORMERV2_S / _B), or the graphs of the export; a run's manifest records them and
+        their sha256. Nothing with random weights."""
+        if params.backend != "torch":
+            return exported_graphs(params.onnx, "mixformerv2") if params.onnx else {}
+        if params.random_weights or params.variant not in VARIANTS:
+            return {}
+        v = VARIANTS[params.variant]
+        return {"checkpoint": checkpoint_path(params.checkpoint, v.env_var, v.file_name, SOURCE)}
+
     def check(self) -> None:
-        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        """Preflight: the backend and device can run here and the checkpoint's keys and shapes
+        are the variant's (not torch's error, or the loader's, on the first frame)."""
         from .backends import check_device
 
         check_device(self.params.backend, self.params.device)
+        if self._path is not None:
+            self._checkpoint()
+
+    def _checkpoint(self, net=None) -> dict:
+        """The checkpoint's state_dict, checked key by key and shape by shape against ``net`` (by
+        default the variant's network on the ``meta`` device); a checkpoint of the other variant
+        is named with the ``variant:`` to set."""
+        from .vit import CheckpointError
+
+        p = self.params
+        try:
+            return _matching_state_dict(self._path, p.variant, p.trust_pickle, net)
+        except CheckpointError as exc:
+            fits = [k for k in VARIANTS if k != p.variant and _fits(self._path, k, p.trust_pickle)]
+            if fits:
+                raise CheckpointError(f"{exc}. It is a {VARIANTS[fits[0]].label} checkpoint: set variant: "
+                                      f"{fits[0]}") from None
+            raise
 
     # -- network ---------------------------------------------------------------------------
 
@@ -206,8 +243,7 @@ class MixFormerV2:
                     net = vit.MixFormerV2Net(cfg)
                 net = net.to_empty(device="cpu")
                 net.box_head.bins = torch.arange(cfg.feat_sz, dtype=torch.float32)
-                vit.load_checkpoint(net, self._path, vit.OfficialCheckpoint(self.variant.label, self.variant.file_name, SOURCE),
-                                    trust_pickle=p.trust_pickle)
+                net.load_state_dict(self._checkpoint(net), strict=True)
             self._net = net
         self._net.eval().to(self.params.device)
         return self._net
@@ -250,6 +286,7 @@ class MixFormerV2:
         size = net.cfg.search_size
         prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
         center = self._state.center if prior is None else prior
+        region = search_region(self._state, p.search_factor, center)
         x, resize_factor = self._crop(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             if p.template_cache:
@@ -269,10 +306,55 @@ class MixFormerV2:
         if commit:
             self._set_online(self._candidate if self._candidate is not None else self._template)
             self._candidate = None
-        extra = {"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit)}
+        extra = {"mlp_score": mlp_score, "window_score": window_score, "template_updated": float(commit), **region}
         extra.update(zip(("sigma_left", "sigma_top", "sigma_right", "sigma_bottom"),
                          pmf_sigmas_px(pmfs, size / resize_factor)))
         return TrackerOutput(box=self._state, confidence=score, pmfs=pmfs, extra=extra)
+
+
+def _matching_state_dict(path: Path, variant: str, trust_pickle: bool, net=None) -> dict:
+    """``vit.matching_state_dict`` against ``net``, by default ``variant``'s on the ``meta`` device."""
+    import torch
+
+    from . import vit
+
+    v = VARIANTS[variant]
+    if net is None:
+        with torch.device("meta"):
+            net = vit.MixFormerV2Net(getattr(vit, v.config))
+    return vit.matching_state_dict(net, path, vit.OfficialCheckpoint(v.label, v.file_name, SOURCE), trust_pickle)
+
+
+def _fits(path: Path, variant: str, trust_pickle: bool) -> bool:
+    """Whether the checkpoint has exactly ``variant``'s keys and shapes."""
+    from .vit import CheckpointError
+
+    try:
+        _matching_state_dict(path, variant, trust_pickle)
+    except CheckpointError:
+        return False
+    return True
+
+
+def _check_export(p: MixFormerV2.Params) -> None:
+    """The export in ``p.onnx`` is of ``p.variant`` and has the graphs ``template_cache`` runs
+    (the two-graph form with the cache, the full graph without); else a ValueError saying what to
+    set or export."""
+    from mata_eval.deploy.export import MANIFEST, read_manifest
+
+    doc, where = read_manifest(p.onnx, "mixformerv2"), Path(p.onnx).expanduser() / MANIFEST
+    exported = doc.get("config", {}).get("variant")
+    if exported is not None and exported != p.variant:
+        raise ValueError(f"{where}: an export of variant {exported}, but the tracker says variant: {p.variant}; set "
+                         f"variant: {exported} or export variant {p.variant} (mata-eval export mixformerv2 --variant "
+                         f"{p.variant})")
+    has = set(doc.get("graphs", {}))
+    needs, form = (("template", "search"), "two-graph") if p.template_cache else (("full",), "full")
+    if not set(needs) <= has:
+        raise ValueError(f"{where}: template_cache: {str(p.template_cache).lower()} runs the {' and '.join(needs)} "
+                         f"graph(s), but this export has {', '.join(sorted(has)) or 'none'}; set template_cache: "
+                         f"{str(not p.template_cache).lower()} or export them (mata-eval export mixformerv2 --form "
+                         f"{form} or both)")
 
 
 def pmf_sigmas_px(pmfs: np.ndarray, crop_side_px: float) -> list[float]:

@@ -42,6 +42,15 @@ _SHARED_LAYOUT = {
 }
 
 
+def exported_graphs(folder: str | Path, model: str) -> dict[str, Path]:
+    """The graph files of a ``mata-eval export`` folder as its export.json lists them, keyed
+    ``onnx_<role>`` (``onnx_full``, ``onnx_template``, ...): what a run's manifest records."""
+    from mata_eval.deploy.export import read_manifest
+
+    root = Path(folder).expanduser()
+    return {f"onnx_{role}": root / g["file"] for role, g in read_manifest(root, model).get("graphs", {}).items()}
+
+
 class ModelFileNotFound(FileNotFoundError):
     """A pretrained model file is missing; the message says which file and where to get it."""
 

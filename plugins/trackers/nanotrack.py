@@ -199,6 +199,12 @@ class NanoTrack:
             "of the exemplar's, size sum not truncated, scale penalty against the target size)")
         opencv_rounding: bool = param(True, "report integer (truncated) boxes exactly like cv2.TrackerNano")
 
+        def __post_init__(self) -> None:
+            """window_alpha's range, checked when the experiment is loaded (not in a first frame)."""
+            if not 0.0 <= self.window_alpha <= 1.0:
+                raise ValueError(f"nanotrack: window_alpha: expected a number in [0, 1] (the window's share of the "
+                                 f"score map's side), got {self.window_alpha!r}")
+
     def __init__(self, params: "NanoTrack.Params | None" = None):
         self.params = params or self.Params()
         if self.params.backend == "torch":

@@ -15,6 +15,7 @@ Torch is imported only when the tracker is used (it is an optional extra).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -23,8 +24,9 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target, usable_prior
+from .crop import clip_box, map_box_back, sample_target, search_region, usable_prior
 from .mixformerv2 import _check_image, checkpoint_path
+from .model_files import exported_graphs
 
 SOURCE = "https://github.com/botaoye/OSTrack (README, model zoo: vitb_256_mae_ce_32x4_ep300, Google Drive)"
 FILE_NAME = "OSTrack_ep0300.pth.tar"
@@ -70,28 +72,54 @@ class OSTrack:
         ce_keep_ratio: float | None = param(None, "override the keep ratio of the CE blocks (null = 0.7 as trained; 1.0 disables CE)")
         hann_window: bool = param(True, "multiply the score map by the centred Hann window before the argmax (upstream)")
 
+        def __post_init__(self) -> None:
+            """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
+            for key in ("search_factor", "template_factor"):
+                if not getattr(self, key) > 0:
+                    raise ValueError(f"ostrack: {key}: expected a positive number, got {getattr(self, key)!r}")
+            if self.ce_keep_ratio is not None and not 0.0 < self.ce_keep_ratio <= 1.0:
+                raise ValueError(f"ostrack: ce_keep_ratio: expected a number in (0, 1] (1 disables candidate "
+                                 f"elimination) or null, got {self.ce_keep_ratio!r}")
+
     def __init__(self, params: "OSTrack.Params | None" = None, network: Any = None):
         """``network``: an already built ``vit.OSTrackNet`` (tests, custom sizes); otherwise the
         official configuration is built and loaded from the checkpoint on first use."""
         self.params = p = params or self.Params()
-        for name in ("search_factor", "template_factor"):
-            if not getattr(p, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(p, name)}")
-        if p.ce_keep_ratio is not None and not 0.0 < p.ce_keep_ratio <= 1.0:
-            raise ValueError(f"ce_keep_ratio must lie in (0, 1], got {p.ce_keep_ratio}")
         self._net = network
         self._path = None
         if p.backend != "torch" and network is None and not p.onnx:
             raise ValueError(f"the {p.backend} backend needs `onnx`: the folder of `mata-eval export ostrack`")
+        if p.backend != "torch" and network is None:   # the export fits, before any frame
+            _check_export(p)
         if network is None and not p.random_weights and p.backend == "torch":
             self._path = checkpoint_path(p.checkpoint, ENV_VAR, FILE_NAME, SOURCE)
         self._state: Box | None = None
 
+    @classmethod
+    def model_files(cls, params: "OSTrack.Params") -> dict[str, Path]:
+        """The weight files these parameters read: the checkpoint (the YAML path, else
+        $MATA_OSTRACK), or the graph of the export; a run's manifest records them and their
+        sha256. Nothing with random weights."""
+        if params.backend != "torch":
+            return exported_graphs(params.onnx, "ostrack") if params.onnx else {}
+        if params.random_weights:
+            return {}
+        return {"checkpoint": checkpoint_path(params.checkpoint, ENV_VAR, FILE_NAME, SOURCE)}
+
     def check(self) -> None:
-        """Preflight: the backend and device can run here (not torch's error on the first frame)."""
+        """Preflight: the backend and device can run here and the checkpoint's keys and shapes
+        are OSTrack-256's (not torch's error, or the loader's, on the first frame)."""
         from .backends import check_device
 
         check_device(self.params.backend, self.params.device)
+        if self._path is not None:
+            import torch
+
+            from . import vit
+
+            with torch.device("meta"):
+                net = vit.OSTrackNet(vit.OSTRACK_256)
+            vit.matching_state_dict(net, self._path, _official(), trust_pickle=self.params.trust_pickle)
 
     def network(self):
         """The torch network (built and loaded on first call)."""
@@ -116,8 +144,7 @@ class OSTrack:
                 with torch.device("meta"):
                     net = vit.OSTrackNet(vit.OSTRACK_256)
                 net = net.to_empty(device="cpu")
-                vit.load_checkpoint(net, self._path, vit.OfficialCheckpoint("OSTrack-256 (vitb_256_mae_ce)", FILE_NAME, SOURCE),
-                                    trust_pickle=p.trust_pickle)
+                vit.load_checkpoint(net, self._path, _official(), trust_pickle=p.trust_pickle)
             self._net = net
         self._net.eval().to(self.params.device)
         return self._net
@@ -149,6 +176,7 @@ class OSTrack:
         size = net.cfg.search_size
         prior = usable_prior(prior, self._state.w, self._state.h, *image.shape[:2])
         center = self._state.center if prior is None else prior
+        region = search_region(self._state, p.search_factor, center)
         patch, resize_factor = sample_target(image, self._state, p.search_factor, size, center=center)
         with torch.inference_mode():
             score, size_map, offset = net(self._template, image_to_tensor(patch, self._tensor_device()), p.ce_keep_ratio)
@@ -159,7 +187,25 @@ class OSTrack:
         self._state = clip_box(map_box_back(pred * size / resize_factor, center, size, resize_factor), h, w, margin=10)
         peak = float(score_map.max())
         return TrackerOutput(box=self._state, confidence=peak, score_map=score_map,
-                             extra={"peak_score": peak, "hann_peak": float(response.max())})
+                             extra={"peak_score": peak, "hann_peak": float(response.max()), **region})
+
+
+def _official():
+    from .vit import OfficialCheckpoint
+
+    return OfficialCheckpoint("OSTrack-256 (vitb_256_mae_ce)", FILE_NAME, SOURCE)
+
+
+def _check_export(p: OSTrack.Params) -> None:
+    """The export in ``p.onnx`` is OSTrack's and eliminates candidates at ``ce_keep_ratio`` (baked
+    into the graph); else a ValueError saying what to set."""
+    from mata_eval.deploy.export import MANIFEST, read_manifest
+
+    baked = read_manifest(p.onnx, "ostrack").get("config", {}).get("ce_keep_ratio") or []
+    if p.ce_keep_ratio is not None and any(abs(p.ce_keep_ratio - r) > 1e-9 for r in baked):
+        raise ValueError(f"{Path(p.onnx).expanduser() / MANIFEST}: the exported graph eliminates candidates at keep "
+                         f"ratio {', '.join(sorted({str(r) for r in baked}))} (fixed in the graph), but the tracker says "
+                         f"ce_keep_ratio: {p.ce_keep_ratio}; set ce_keep_ratio: null or backend: torch")
 
 
 @hookimpl

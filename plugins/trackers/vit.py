@@ -564,6 +564,13 @@ def load_checkpoint(model: nn.Module, path: str | Path, official: OfficialCheckp
                     trust_pickle: bool = False) -> None:
     """Load ``path`` into ``model`` with strict key and shape matching; a mismatch raises
     :class:`CheckpointError` listing missing/unexpected keys and shape differences."""
+    model.load_state_dict(matching_state_dict(model, path, official, trust_pickle), strict=True)
+
+
+def matching_state_dict(model: nn.Module, path: str | Path, official: OfficialCheckpoint,
+                        trust_pickle: bool = False) -> dict:
+    """The state_dict of ``path``, checked key by key and shape by shape against ``model`` (which
+    may be on the ``meta`` device: the preflight checks a file without materialising a network)."""
     sd = read_state_dict(path, official, trust_pickle)
     own = model.state_dict()
     missing = [k for k in own if k not in sd]
@@ -579,4 +586,4 @@ def load_checkpoint(model: nn.Module, path: str | Path, official: OfficialCheckp
         raise CheckpointError(
             f"{path} does not match {official.model} (expected the official '{official.file_name}', "
             f"published at {official.source}): " + "; ".join(p for p in parts if p))
-    model.load_state_dict(sd, strict=True)
+    return sd

@@ -122,6 +122,12 @@ class VitTrack:
             "5.0", "the cv2.TrackerVit reproduced: '5.0' (up to OpenCV 5.0: the zoo's published scores) or "
             "'5.1' (element-wise blob scale, boxes cut to the image, at least 10 px a side)")
 
+        def __post_init__(self) -> None:
+            """window_alpha's range, checked when the experiment is loaded (not in a first frame)."""
+            if not 0.0 <= self.window_alpha <= 1.0:
+                raise ValueError(f"vittrack: window_alpha: expected a number in [0, 1] (the window's share of the "
+                                 f"score map's side), got {self.window_alpha!r}")
+
     def __init__(self, params: "VitTrack.Params | None" = None):
         self.params = params or self.Params()
         self._path = self.model_files(self.params)["model"]   # fails early, naming the file
