@@ -318,3 +318,17 @@ def test_rescoring_an_occluded_run_without_its_frames_says_what_is_lost(capsys):
     config = {"dataset": {"name": "toy"}, "occlusion": dataclasses.asdict(OcclusionParams()), "seed": 1}
     assert cli._as_the_run_saw_them(seqs, "RUN", config) is seqs
     assert "RUN: scored without the run's occlusion augmentation (no AOC group" in capsys.readouterr().out
+
+
+def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path):
+    """A mata run folder writes no <seq>_time.txt, so a sequence named ``lap_time`` is a
+    sequence (QA pass: its lap_time.txt was skipped as a pytracking timing file and the finished
+    sequence counted as without results)."""
+    seqs = [Sequence("lap_time", np.tile([20.0, 20.0, 10.0, 10.0], (N, 1)), fps=30.0)]
+    d = tmp_path / "exp" / "run"
+    results.write_manifest(d, {"run": "run", "experiment": "exp", "config_hash": "abc", "config": {}})
+    results.write_sequence(d, "lap_time", seqs[0].groundtruth, frames_csv(np.ones(N, bool), np.full(N, 5.0)), "")
+    sc = evaluate.evaluate_run(d, seqs)
+    assert list(sc.sequences) == ["lap_time"] and not sc.missing
+    assert sc.sequences["lap_time"].sr > 0.9   # exact boxes
+    assert evaluate.stale_reason(sc, d) is None

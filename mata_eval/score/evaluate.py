@@ -208,7 +208,7 @@ def read_results(results_dir: Path, layout: str = "auto") -> tuple[str, dict[str
                     results.read_predictions(f), None, _read_times(sub / f"{sub.name}_time.txt"), str(f)))
         return layout, out
     for f in sorted(d.glob("*.txt")):
-        if f.name.endswith("_time.txt"):
+        if layout != "mata" and f.name.endswith("_time.txt"):   # timings (a run folder writes none)
             continue
         out[f.stem] = _read_one(f, lambda: _read_sequence(d, f, layout))
     return layout, out
@@ -394,7 +394,7 @@ def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     (sequences finished or failed after they were written: a report made while a run was
     writing the folder), or None."""
     d = Path(run_dir)
-    finished = {p.stem for p in d.glob("*.txt") if not p.name.endswith("_time.txt")}
+    finished = {p.stem for p in d.glob("*.txt")}
     unscorable = set(scores.meta.get("unscorable") or ())
     scored = set(scores.sequences) | set(scores.meta.get("unmatched_results") or ()) | unscorable
     if finished != scored:
