@@ -380,6 +380,26 @@ def test_mata_minus_baseline_pairs_a_run_of_an_installed_plugin_with_its_baselin
     assert row[2] == "2-orb - 1-baseline" and row[3] == "+15.0"   # SR 8/20 - 5/20
 
 
+def test_mata_minus_baseline_takes_the_baseline_of_its_own_output_and_tracker_version(tmp_path):
+    """Review: two outputs of one experiment (report jetson/* desktop/*) paired every MATA run
+    with the first baseline found, and a MATA run of an upgraded tracker package with the old
+    one's baseline."""
+    from mata_eval.report.overview import mata_deltas
+
+    dirs = [make_run(tmp_path / "jetson", "1-baseline", config(), {"s": 2}),
+            make_run(tmp_path / "desktop", "1-baseline", config(), {"s": 6}),
+            make_run(tmp_path / "desktop", "2-mata", config(mata=True), {"s": 8})]
+    (row,) = mata_deltas([r.scores for r in load_runs(dirs)]).rows
+    assert row[3] == "+10.0"   # SR 8/20 - 6/20 (the jetson baseline's would be +30.0)
+    old = make_run(tmp_path / "v", "1-baseline", config(plugin_versions={"qa-trk": "0.1"}), {"s": 5})
+    new = make_run(tmp_path / "v", "2-mata", config(mata=True, plugin_versions={"qa-trk": "0.2", "qa-ego": "1"}),
+                   {"s": 8})
+    assert mata_deltas([r.scores for r in load_runs([old, new])]) is None
+    same = make_run(tmp_path / "w", "2-mata", config(mata=True, plugin_versions={"qa-trk": "0.1", "qa-ego": "1"}),
+                    {"s": 8})
+    assert mata_deltas([r.scores for r in load_runs([old, same])]).rows[0][3] == "+15.0"
+
+
 def test_ablation_keeps_clean_and_occluded_runs_apart_and_their_numbers(tmp_path):
     """QA pass: a matrix with a data axis (clean / occ) put both sets' rows in one block, with no
     Dataset column, and numbered them 1..10 (run names do not start with the number)."""

@@ -13,7 +13,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 from ..score.evaluate import RunScores
 from ..score.metrics import DEFAULT_GROUPS, summarize
@@ -145,32 +145,29 @@ def has_challenges(runs: Sequence[RunScores]) -> bool:
 
 def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     """MATA minus its baseline, in points, for every MATA run whose baseline (the same
-    configuration without ego-motion and estimator; the versions of installed plugins, which
-    name those blocks' packages too, are not compared) is among ``runs``: the experiment's
+    configuration without ego-motion and estimator: :func:`_key`, :func:`_same_versions`; the
+    one in the same output folder where several are given) is among ``runs``: the experiment's
     takeaway per tracker and protocol. Configurations come from each run folder's manifest;
     None when no run has its baseline here."""
     from ..run.results import read_manifest
     from .paper import is_mata, plugin_label, protocol_label
-
-    def key(cfg: dict) -> str:
-        blocks = ("egomotion", "estimator", "feedback", "plugin_versions")
-        return json.dumps({k: v for k, v in cfg.items() if k not in blocks},
-                          sort_keys=True, default=str)
 
     configs = []
     for r in runs:
         manifest = read_manifest(Path(r.path)) if Path(r.path).is_dir() else None
         if manifest and isinstance(manifest.get("config"), dict):
             configs.append((r, manifest["config"]))
-    baselines = {}
+    baselines: dict[str, list[tuple[RunScores, dict]]] = {}
     for r, cfg in configs:
         if cfg.get("egomotion") is None and cfg.get("estimator") is None:
-            baselines.setdefault(key(cfg), r)
+            baselines.setdefault(_key(cfg), []).append((r, cfg))
     rows, notes = [], []
     for r, cfg in configs:
-        base = baselines.get(key(cfg)) if is_mata(cfg) else None
-        if base is None:
+        found = [b for b, bcfg in baselines.get(_key(cfg), []) if _same_versions(cfg, bcfg)] if is_mata(cfg) else []
+        if not found:
             continue
+        # two outputs of one experiment (report jetson/* desktop/*): the baseline beside the run
+        base = next((b for b in found if Path(b.path).parent == Path(r.path).parent), found[0])
         mine, theirs = r.summary.overall, base.summary.overall
         if set(r.sequences) != set(base.sequences):
             # a sequence that failed (or is missing) in one run only: both means over the
@@ -191,6 +188,21 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     return Table("mata_vs_baseline", "MATA minus its baseline, in points (same tracker, data and protocol; "
                  "> 0: MATA better)", ["Tracker", "Protocol", "Runs"], [],
                  [lab for _, lab in METRIC_LABELS], rows, notes=notes, stub_align="l")
+
+
+def _key(cfg: Mapping[str, Any]) -> str:
+    """What a MATA run shares with its baseline: the configuration without blocks B and C (and
+    without the installed plugins' versions: :func:`_same_versions`)."""
+    blocks = ("egomotion", "estimator", "feedback", "plugin_versions")
+    return json.dumps({k: v for k, v in cfg.items() if k not in blocks}, sort_keys=True, default=str)
+
+
+def _same_versions(mata: Mapping[str, Any], baseline: Mapping[str, Any]) -> bool:
+    """Whether the MATA run used the baseline's versions of the baseline's installed plugin
+    packages (it may name more: those of its third-party blocks B and C); a MATA run of an
+    upgraded tracker is not paired with the old tracker's baseline."""
+    mine = mata.get("plugin_versions") or {}
+    return all(mine.get(d) == v for d, v in (baseline.get("plugin_versions") or {}).items())
 
 
 def _csv_table(runs: Sequence[RunScores], table: str) -> Table:
