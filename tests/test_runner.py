@@ -398,6 +398,26 @@ def test_a_write_error_stops_the_run_at_once_naming_the_file(tmp_path, monkeypat
     assert outcomes.pop(written[0]) == "skipped" and "skipped" not in outcomes.values()
 
 
+def test_a_file_of_one_sequence_that_cannot_be_written_fails_that_sequence_only(tmp_path, monkeypatch):
+    """Review: a name the file system refuses (ENAMETOOLONG below NAME_MAX on eCryptfs, EINVAL
+    for ':' on exFAT) is one sequence's problem: it fails, the others run (it stopped the run,
+    and every rerun stopped again at that sequence)."""
+    import errno
+
+    exp = _exp(tmp_path)
+    replace = os.replace
+
+    def refuse_one_name(src, dst):
+        if os.path.basename(dst).startswith("good."):
+            raise OSError(errno.ENAMETOOLONG, os.strerror(errno.ENAMETOOLONG), str(dst))
+        return replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", refuse_one_name)
+    outcomes = {o.sequence: o for o in run_experiment(exp, jobs=1, progress=False, log=lambda s: None)}
+    assert outcomes["good"].status == "failed" and "File name too long" in outcomes["good"].reason
+    assert outcomes["nan"].status == "done" and "cannot read frame 2" in outcomes["broken"].reason   # as without
+
+
 def test_a_run_folder_deleted_during_the_run_is_not_silently_made_again(tmp_path, monkeypatch):
     """The output folder deleted while a run writes it: the run stops with an error naming the
     lost manifest (QA pass: the next result made the folder again, without manifest or lock)."""

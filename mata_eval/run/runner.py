@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import json
 import os
 import warnings
@@ -44,6 +45,8 @@ class CannotWrite(UserError):
 
 
 LOCK = ".lock"
+#: errors on writing a result that every later result would hit too: they stop the run
+FOLDER_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EIO, errno.ENOENT})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -182,7 +185,9 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
 def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
     """Write one returned result into its run folder (atomically, predictions last). Raises
     :class:`CannotWrite` when the folder lost its manifest (deleted during the run: written
-    again, it would hold results no manifest describes) or a file cannot be written."""
+    again, it would hold results no manifest describes) or the folder cannot take any file (disk
+    full, read-only: :data:`FOLDER_ERRORS`); a file of its own it cannot write (e.g. a name the
+    file system refuses) fails the sequence only."""
     if not (out / results.MANIFEST).is_file():
         raise CannotWrite(f"{out / results.MANIFEST} is gone (the run folder was deleted or emptied during the "
                           f"run); the run stops without writing {r.run}/{r.sequence}: rerun to start the folder again")
@@ -195,7 +200,9 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
             else:   # one an earlier attempt skipped is not this result's
                 results.inside(out, r.sequence, ".bad_frames.json").unlink(missing_ok=True)
             results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
-    except OSError as exc:  # e.g. disk full: the next results would be lost too
+    except OSError as exc:
+        if exc.errno not in FOLDER_ERRORS:   # this sequence's own file (a name the file system refuses)
+            return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")
         raise CannotWrite(f"cannot write the results of {r.run}/{r.sequence}: {exc.filename or out}: "
                           f"{exc.strerror or exc}; the run stops (the sequences written stay: rerun the same "
                           f"command to resume)") from exc
