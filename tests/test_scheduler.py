@@ -529,7 +529,7 @@ def test_a_diagnostics_that_breaks_its_contract_names_the_estimator_and_the_key(
 
 def test_diagnostics_numbers_and_flags_are_recorded(monkeypatch):
     monkeypatch.setenv("MATA_EVAL_RECORD", "1")
-    run = run_sequence(make_sequence(3), FrameTracker(), None, DiagEstimator({"used": True, "n": np.int64(2)}),
-                       LTP(), np.random.default_rng(0))
+    diag = {"used": True, "n": np.int64(2), "gated": np.float64(3.0) < 9.0, "d": np.float32(0.5)}
+    run = run_sequence(make_sequence(3), FrameTracker(), None, DiagEstimator(diag), LTP(), np.random.default_rng(0))
     rows = list(csv.DictReader(io.StringIO(run.frames_csv())))
-    assert [(r["est_used"], r["est_n"]) for r in rows] == [("1", "2")] * 3
+    assert [(r["est_used"], r["est_n"], r["est_gated"], r["est_d"]) for r in rows] == [("1", "2", "1", "0.5")] * 3

@@ -649,7 +649,7 @@ def _diagnostics(alarm: "_CallAlarm", estimator: Any, k: int, t: float) -> dict[
     for key, v in out.items():
         if not (isinstance(key, str) and _DIAGNOSTICS_KEY.fullmatch(key)):
             raise fail(f"diagnostics() key {key!r}: expected letters, digits and _ (a frames.csv column name)")
-        if not isinstance(v, numbers.Real):
+        if not isinstance(v, (numbers.Real, np.bool_)):   # (a bool, numpy's too, is 0 / 1)
             raise fail(f"diagnostics() key {key!r}: {v!r} is not a number")
     return {key: float(v) for key, v in out.items()}
 
@@ -735,7 +735,7 @@ def motion_problem(m: Motion) -> str | None:
         return f"returned a covariance of {_shape(m.cov, C)}; expected 9x9 (row-major vec(H)) or None"
     if not _is_number(m.inliers) or not (m.sigma is None or _is_number(m.sigma)):
         return f"returned inliers {m.inliers!r}, sigma {m.sigma!r}; expected a number and a number or None"
-    if m.valid and (not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12 or (C is not None and not np.all(np.isfinite(C)))):
+    if m.valid and (not np.isfinite(H).all() or abs(H[2, 2]) < 1e-12 or (C is not None and not np.isfinite(C).all())):
         return (f"returned a valid motion whose H (or covariance) is not finite or has h33 = 0: H = {H.tolist()}; "
                 f"return Motion.invalid() (valid=False) when there is no motion")
     return None
@@ -751,13 +751,15 @@ def estimate_problem(e: Estimate) -> str | None:
         C = _array(e.cov)
         if C is None or C.ndim != 2 or C.shape[0] != C.shape[1]:
             return f"returned a covariance of {_shape(e.cov, C)}; expected a square matrix or None"
-        if np.any(np.isnan(C)):
+        if np.isnan(C).any():
             return "returned a covariance holding NaN; expected numbers (inf: unknown) or None"
     return None
 
 
 def _array(value: Any) -> np.ndarray | None:
     """``value`` as an array of floats, or None when it is not numbers."""
+    if type(value) is np.ndarray and value.dtype == np.float64:   # what blocks return: no conversion
+        return value
     try:
         return np.asarray(value, dtype=float)
     except (TypeError, ValueError):
