@@ -505,7 +505,9 @@ def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
 @pytest.mark.parametrize("tracker, key, value, expected", [
     ("mixformerv2", "window_alpha", 1.5, "window_alpha: expected a number in [0, 1]"),
     ("mixformerv2", "window_alpha", ".nan", "window_alpha: expected a number in [0, 1]"),
-    ("mixformerv2", "search_factor", 0, "search_factor: expected a positive number"),
+    ("mixformerv2", "search_factor", 0, "search_factor: expected a positive finite number"),
+    ("mixformerv2", "template_factor", ".inf", "template_factor: expected a positive finite number"),
+    ("ostrack", "search_factor", ".inf", "search_factor: expected a positive finite number"),
     ("mixformerv2", "update_interval", 0, "update_interval: expected >= 1"),
     ("ostrack", "ce_keep_ratio", 1.5, "ce_keep_ratio: expected a number in (0, 1]"),
     ("vittrack", "window_alpha", -0.1, "window_alpha: expected a number in [0, 1]"),

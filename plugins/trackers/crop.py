@@ -67,6 +67,15 @@ def sample_target(image: np.ndarray, box: Box | Sequence[float], factor: float, 
     return patch, output_size / crop_sz
 
 
+def check_crop_factors(tracker: str, params: object) -> None:
+    """A tracker's ``search_factor`` and ``template_factor``: positive finite numbers (an infinite
+    one overflows the crop), checked when the experiment is loaded."""
+    for key in ("search_factor", "template_factor"):
+        v = getattr(params, key)
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{tracker}: {key}: expected a positive finite number, got {v!r}")
+
+
 def crop_window(box: Box | Sequence[float], factor: float,
                 center: tuple[float, float] | None = None) -> tuple[int, int, int]:
     """The square :func:`sample_target` crops, in image pixels: ``(x1, y1, crop_sz)``."""

@@ -35,9 +35,9 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
-from .crop import clip_box, map_box_back, sample_target, search_region, usable_prior
+from .crop import check_crop_factors, clip_box, map_box_back, sample_target, search_region, usable_prior
 from .model_files import exported_graphs
-from .window_score import pmf_window_score_min
+from .window_score import check_window_alpha, pmf_window_score_min
 
 SOURCE = "https://github.com/MCG-NJU/MixFormerV2 (README, model zoo: Google Drive / NJU Box links)"
 
@@ -151,12 +151,8 @@ class MixFormerV2:
             """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
             if self.variant not in VARIANTS:
                 raise ValueError(f"mixformerv2: variant: expected one of {', '.join(VARIANTS)}, got {self.variant!r}")
-            for key in ("search_factor", "template_factor"):
-                if not getattr(self, key) > 0:
-                    raise ValueError(f"mixformerv2: {key}: expected a positive number, got {getattr(self, key)!r}")
-            if not 0.0 <= self.window_alpha <= 1.0:
-                raise ValueError(f"mixformerv2: window_alpha: expected a number in [0, 1] (the window's share of "
-                                 f"the PMF's bins), got {self.window_alpha!r}")
+            check_crop_factors("mixformerv2", self)
+            check_window_alpha("mixformerv2", self.window_alpha, "the PMF's bins")
             if not math.isfinite(self.tau_template):
                 raise ValueError(f"mixformerv2: tau_template: expected a finite number, got {self.tau_template!r}")
             if self.update_interval < 1:

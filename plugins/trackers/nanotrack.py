@@ -37,7 +37,7 @@ from mata_eval.types import Box, TrackerOutput
 
 from .crop import usable_prior
 from .model_files import resolve_model
-from .window_score import map_window_score
+from .window_score import check_window_alpha, map_window_score
 
 EXEMPLAR = 127
 INSTANCE = 255
@@ -201,9 +201,7 @@ class NanoTrack:
 
         def __post_init__(self) -> None:
             """window_alpha's range, checked when the experiment is loaded (not in a first frame)."""
-            if not 0.0 <= self.window_alpha <= 1.0:
-                raise ValueError(f"nanotrack: window_alpha: expected a number in [0, 1] (the window's share of the "
-                                 f"score map's side), got {self.window_alpha!r}")
+            check_window_alpha("nanotrack", self.window_alpha, "the score map's side")
 
     def __init__(self, params: "NanoTrack.Params | None" = None):
         self.params = params or self.Params()

@@ -37,7 +37,7 @@ from mata_eval.types import Box, TrackerOutput
 
 from .crop import crop_square, usable_prior
 from .model_files import resolve_model
-from .window_score import map_window_score
+from .window_score import check_window_alpha, map_window_score
 
 _MEAN_RGB = np.array([0.485, 0.456, 0.406])
 _STD_RGB = np.array([0.229, 0.224, 0.225])
@@ -124,9 +124,7 @@ class VitTrack:
 
         def __post_init__(self) -> None:
             """window_alpha's range, checked when the experiment is loaded (not in a first frame)."""
-            if not 0.0 <= self.window_alpha <= 1.0:
-                raise ValueError(f"vittrack: window_alpha: expected a number in [0, 1] (the window's share of the "
-                                 f"score map's side), got {self.window_alpha!r}")
+            check_window_alpha("vittrack", self.window_alpha, "the score map's side")
 
     def __init__(self, params: "VitTrack.Params | None" = None):
         self.params = params or self.Params()

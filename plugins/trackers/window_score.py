@@ -29,6 +29,14 @@ def window_half_width(n_bins: int, alpha: float) -> int:
     return int(round(alpha * n_bins / 2.0))
 
 
+def check_window_alpha(tracker: str, alpha: float, over: str) -> None:
+    """A tracker's ``window_alpha`` in [0, 1] (the window's share of ``over``), checked when the
+    experiment is loaded: a ValueError naming the tracker and the key."""
+    if not 0.0 <= alpha <= 1.0:
+        raise ValueError(f"{tracker}: window_alpha: expected a number in [0, 1] (the window's share of {over}), "
+                         f"got {alpha!r}")
+
+
 def _as_pmf(values: np.ndarray, what: str) -> np.ndarray:
     p = np.asarray(values, dtype=np.float64)
     if p.size == 0:
