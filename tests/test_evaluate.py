@@ -332,3 +332,16 @@ def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path):
     assert list(sc.sequences) == ["lap_time"] and not sc.missing
     assert sc.sequences["lap_time"].sr > 0.9   # exact boxes
     assert evaluate.stale_reason(sc, d) is None
+
+
+def test_a_foreign_folder_whose_first_file_is_not_text_scores_the_others(tmp_path):
+    """Review: detecting the layout read the first prediction file as text, so a binary one
+    failed the whole eval with a decode error that named no file."""
+    seqs = make_sequences()
+    d = tmp_path / "pysot"
+    d.mkdir()
+    (d / "bike.txt").write_bytes(b"\xff\xfe\x00\x01garbage")   # sorted first
+    np.savetxt(d / "car2.txt", predictions(seqs)["car2"], fmt="%g", delimiter=",")
+    sc = evaluate.evaluate_results(d, seqs, layout="auto")
+    assert sc.layout == "pysot" and list(sc.sequences) == ["car2"]
+    assert re.search(r"bike\.\*: not text", sc.meta["unscorable"]["bike"])

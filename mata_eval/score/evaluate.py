@@ -139,7 +139,7 @@ def detect_layout(results_dir: Path) -> str:
                 f"files: pass them (e.g. {d}/*) to score each as a row" if nested else "")
         raise FileNotFoundError(
             f"{d}: no results found (expected <seq>.txt files, or <seq>/<seq>_001.txt for got10k){hint}")
-    first = next((line for line in txts[0].read_text().splitlines() if line.strip()), "")
+    first = next((line for line in txts[0].read_text(errors="replace").splitlines() if line.strip()), "")   # (a binary file: named when read)
     return "pytracking" if "\t" in first else "pysot"
 
 
