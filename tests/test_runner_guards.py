@@ -128,6 +128,27 @@ def test_a_second_writer_is_refused(tmp_path, registry):
     assert _statuses(run_experiment(exp, jobs=1, **QUIET)) == {f"c{i}": "done" for i in range(4)}
 
 
+def test_a_report_probing_the_lock_does_not_refuse_a_run_starting_then(tmp_path, registry):
+    """Review: `report` tests whether a run writes the folder by taking its lock for an instant;
+    a run starting in that instant was refused as a second writer."""
+    import threading
+
+    exp = load_experiment(_write(tmp_path), registry)
+    (tmp_path / "out" / "exp").mkdir(parents=True)
+    probe, taken = FileLock(str(tmp_path / "out" / "exp" / ".lock")), threading.Event()
+
+    def hold_briefly():
+        with probe:
+            taken.set()
+            time.sleep(0.2)
+
+    thread = threading.Thread(target=hold_briefly)
+    thread.start()
+    taken.wait()
+    assert _statuses(run_experiment(exp, jobs=1, **QUIET)) == {f"c{i}": "done" for i in range(4)}
+    thread.join()
+
+
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_call_that_never_returns_fails_its_sequence_and_the_run_goes_on(tmp_path, registry, jobs):
     exp = load_experiment(_write(tmp_path, "{name: faulty, fault: hang}", "timeout_s: 0.5\n"), registry)

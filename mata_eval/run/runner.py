@@ -229,7 +229,7 @@ def lock_run_dir(out: Path) -> Iterator[None]:
     out.mkdir(parents=True, exist_ok=True)
     lock = filelock.FileLock(str(out / LOCK))
     try:
-        lock.acquire(timeout=0)
+        lock.acquire(timeout=1.0)   # (a report's being_written holds it for an instant: waited out)
     except filelock.Timeout:
         raise RunLocked(f"{out} is being written by another mata-eval run (lock file {out / LOCK}); "
                         f"wait for it to end, or write to another folder with -o") from None
