@@ -152,7 +152,9 @@ class LocalExecutor:
         with stop.deferred(), (_opencv_threads_stopped() if method == "fork" else contextlib.nullcontext()):
             pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
                                        initargs=(parent,))
-            workers = pool._processes   # pid -> process (no public handle; shutdown drops the attribute)
+            # pid -> process, for how a dead one ended (no public handle; shutdown drops the attribute,
+            # a Python without it loses only the exit code in the failure message)
+            workers = getattr(pool, "_processes", None)
             try:
                 futures = {pool.submit(run_task, exp, task): task for task in tasks}
                 waiting = set(futures)
@@ -172,7 +174,7 @@ class LocalExecutor:
                 raise
             finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
                 pool.shutdown(wait=True, cancel_futures=True)
-        return lost, [w.exitcode for w in workers.values() if w.exitcode] if lost else []
+        return lost, [w.exitcode for w in (workers or {}).values() if w.exitcode] if lost else []
 
 
 class RayExecutor:

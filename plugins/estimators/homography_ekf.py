@@ -817,8 +817,9 @@ def _compiled_tick(backend: str, params: HomographyEKF.Params, overridden: Seque
     if backend not in BACKENDS:
         raise ValueError(f"homography_ekf: backend (or ${BACKEND_ENV}) must be one of {BACKENDS}, got {backend!r}")
     if overridden and backend == "numba":
-        raise ValueError(f"homography_ekf: backend numba computes the tick in compiled code, which would ignore the "
-                         f"subclass's {', '.join(overridden)}; use backend numpy (auto does)")
+        raise ValueError(f"homography_ekf: backend numba (or ${BACKEND_ENV}=numba) computes the tick in compiled "
+                         f"code, which would ignore the subclass's {', '.join(overridden)}; use backend numpy "
+                         f"(auto does)")
     if backend == "numpy" or overridden or (backend == "auto" and params.preset == "paper"):
         return None
     try:
