@@ -6,6 +6,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
+import shlex
+import shutil
 import textwrap
 from dataclasses import dataclass
 
@@ -498,7 +501,16 @@ def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp
     assert cli.main(["run", str(exp.path), "-j", "1", "-q"]) == 1
     out = capsys.readouterr().out
     assert (f"cannot score exp/good: {run / 'good.frames.csv'}: 5 rows, sequence 'good' has 6 frames; "
-            f"to run it again: mata-eval run {exp.path} --runs exp --force --sequences good") in out
+            f"to run it again: mata-eval run {exp.path} -o {run.parent} --runs exp --force --sequences good") in out
+    # a copy of the folder: the hint recomputes the sequence in the copy (QA pass: it left out -o)
+    copy = tmp_path / "copy" / "exp"
+    shutil.copytree(run, copy)
+    (copy / "scores.json").unlink()
+    assert cli.main(["report", str(copy)]) == 0
+    hint = re.search(r"cannot score exp/good: .*; to run it again: mata-eval (run .*)$", capsys.readouterr().out, re.M)
+    assert cli.main(shlex.split(hint.group(1)) + ["-j", "1", "-q"]) == 0
+    assert len((copy / "good.frames.csv").read_text().splitlines()) == 7   # header + 6 frames
+    assert len((run / "good.frames.csv").read_text().splitlines()) == 6    # the original untouched
     scores = json.loads((run / "scores.json").read_text())
     assert set(scores["sequences"]) == {"nan"} and set(scores["failures"]) == {"good", "broken"}
     (run / "nan.txt").write_text("1,2,3\n")

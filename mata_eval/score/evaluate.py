@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
@@ -342,9 +343,10 @@ def evaluate_results(
     unscorable: dict[str, str] = {}
     per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups, unscorable)
     manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
-    if manifest.get("experiment_file"):   # what recomputes the sequence
-        unscorable = {k: f"{why}; to run it again: mata-eval run {manifest['experiment_file']} --runs "
-                         f"{manifest.get('run')} --force --sequences {k}" for k, why in unscorable.items()}
+    if manifest.get("experiment_file"):   # what recomputes the sequence, in this folder (-o: copied or moved)
+        again = (f"mata-eval run {shlex.quote(manifest['experiment_file'])} -o {shlex.quote(str(d.resolve().parent))} "
+                 f"--runs {manifest.get('run')} --force --sequences")
+        unscorable = {k: f"{why}; to run it again: {again} {k}" for k, why in unscorable.items()}
     dataset = (manifest.get("config") or {}).get("dataset")
     meta = {
         "experiment": manifest.get("experiment"),
