@@ -325,3 +325,8 @@ def test_a_run_records_its_model_file_and_refuses_results_of_another(models, tmp
     with pytest.raises(ResultsConflict, match=r"another model file .*a.onnx.* than .*b.onnx"):
         run_experiment(load_experiment(exp_file), **quiet)
     assert [o.status for o in run_experiment(load_experiment(exp_file), force=True, **quiet)] == ["done"]
+    then, now = (hashlib.sha256(p.read_bytes()).hexdigest()[:12] for p in (b, a))
+    shutil.copy(a, b)   # the same path, another content (QA pass: "another model file (b) than b")
+    with pytest.raises(ResultsConflict, match=rf"another content of its model file .*b.onnx \(sha256 {then}\.\.\. "
+                                              rf"then, {now}\.\.\. now\)"):
+        run_experiment(load_experiment(exp_file), **quiet)

@@ -110,7 +110,10 @@ def _read_beyond_the_configuration(old: dict, now: dict) -> str | None:
     before = old.get("model_files") or {}
     for k, f in now["model_files"].items():
         if k in before and before[k].get("sha256") != f["sha256"]:
-            return f"made with another {k} file ({before[k].get('path')}) than {f['path']} (sha256 differs)"
+            sha = f"sha256 {str(before[k].get('sha256'))[:12]}... then, {f['sha256'][:12]}... now"
+            if before[k].get("path") == f["path"]:   # the file itself changed (a new export, a copy over it)
+                return f"made with another content of its {k} file {f['path']} ({sha})"
+            return f"made with another {k} file ({before[k].get('path')}) than {f['path']} ({sha})"
     if "preset_values" in old:
         for block, values in now["preset_values"].items():
             was = old["preset_values"].get(block, {})
