@@ -749,8 +749,9 @@ def _add_report(subparsers) -> None:
     p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run folders (or scores.json files)")
     p.add_argument("--out", help="write tables (<table>.txt, .md, .csv or .tex, as --format says) and success / "
                                  "precision / NT2F plots (PNG) into this folder")
-    p.add_argument("--format", choices=FORMATS + ("all",), default="terminal",
-                   help="table format (default: %(default)s; with --out, 'all' writes every format)")
+    p.add_argument("--format", choices=FORMATS + ("all",), default="terminal", type=_format_name,
+                   help="table format (default: %(default)s; md and tex name markdown and latex too; with --out, "
+                        "'all' writes every format)")
     p.add_argument("--table", choices=TABLES + ("both",), default="overall",
                    help="overall metrics, per-challenge SR/NT2F (paper Table 2), or both")
     p.add_argument("--no-plots", action="store_true", help="with --out: tables only")
@@ -969,7 +970,14 @@ def _int_in(low: int, high: int | None = None) -> Callable[[str], int]:
     return parse
 
 
+def _format_name(text: str) -> str:
+    """A --format value, its file extension (md, tex, txt) taken for the format's name."""
+    return {ext: fmt for fmt, ext in EXTENSIONS.items()}.get(text, text)
+
+
 def _one_line(exc: BaseException) -> str:
+    if isinstance(exc, FileExistsError) and exc.filename and not Path(exc.filename).is_dir():   # e.g. --out afile
+        return f"{exc.filename}: a file is there; expected a folder (or a name that does not exist yet)"
     if isinstance(exc, OSError) and exc.filename:
         return f"{exc.filename}: {exc.strerror or exc} (--debug shows the traceback)"
     return " ".join(str(exc).split())

@@ -247,6 +247,12 @@ def test_report_out_writes_the_table_of_the_default_format_too(tmp_path, capsys)
     table = (tmp_path / "rep" / "overall.txt").read_text()
     assert table.splitlines()[0].split()[:2] == ["Run", "Seqs"] and "95.2" in table
     assert "95.2" in capsys.readouterr().out   # still printed
+    assert cli.main(["report", str(d), "--format", "md"]) == 0   # the extension names the format too
+    assert capsys.readouterr().out.startswith("| Run |")
+    (tmp_path / "afile").write_text("x")
+    assert cli.main(["report", str(d), "--out", str(tmp_path / "afile"), "--no-plots"]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {tmp_path / 'afile'}: a file is there; expected a folder "
+                                               "(or a name that does not exist yet)")   # QA pass: "File exists"
 
 
 def test_an_unreadable_scores_json_says_what_to_do(tmp_path, capsys):
