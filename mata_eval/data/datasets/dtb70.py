@@ -64,7 +64,7 @@ class DTB70:
                      if (d / "groundtruth_rect.txt").is_file()}
         if not files:
             raise DatasetError(f"no DTB70 sequence found: expected {self.root}/<seq>/groundtruth_rect.txt "
-                               "(or annotations: <folder of <seq>.txt>)")
+                               "(or annotations: <folder of <seq>.txt>; mata-eval eval: --set annotations=<folder>)")
         return files
 
     def _att_dir(self) -> Path | None:

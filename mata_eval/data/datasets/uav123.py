@@ -118,7 +118,7 @@ class _UAV123Layout:
         d = self.anno_dir
         if not d.is_dir():
             raise DatasetError(f"annotation folder not found: {d}; expected the official layout "
-                               f"<root>/anno/{self.subset}/<seq>.txt (or set annotations: <folder>)")
+                               f"<root>/anno/{self.subset}/<seq>.txt (or set annotations: <folder>; mata-eval eval: --set annotations=<folder>)")
         return sorted(p.stem for p in d.glob("*.txt")
                       if p.is_file() and p.stem not in ("ATTRIBUTE_ORDER", "README") and not p.stem.startswith("README"))
 

@@ -64,7 +64,7 @@ class UAVDT:
                 return self.root / rel
         raise DatasetError(f"UAVDT annotations not found: expected <seq>_gt.txt files in "
                            f"{' or '.join(str(self.root / r) for r in ANNO_CANDIDATES)} "
-                           "(or annotations: <folder>)")
+                           "(or annotations: <folder>; mata-eval eval: --set annotations=<folder>)")
 
     def frames_dir(self) -> Path:
         if self.params.frames:
