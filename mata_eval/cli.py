@@ -362,7 +362,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     """The run tables (and, with ``--out``, their files and plots) of ``run_dirs``."""
-    from .report.overview import FORMATS, TABLES, distinct_names, render_table
+    from .report.overview import FORMATS, distinct_names, render_table
     from .report.plots import plot_curves
     from .score.evaluate import ScoresUnavailable, scores_for
 
@@ -375,7 +375,7 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
             return 2
     runs = distinct_names(runs)   # two folders of one run name (two outputs of one experiment): two labels
     fmts = FORMATS if args.format == "all" else (args.format,)
-    tables = TABLES if args.table == "both" else (args.table,)
+    tables = ("overall", "challenges") if args.table == "both" else (args.table,)
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
@@ -753,7 +753,8 @@ def _add_report(subparsers) -> None:
                    help="table format (default: %(default)s; md and tex name markdown and latex too; with --out, "
                         "'all' writes every format)")
     p.add_argument("--table", choices=TABLES + ("both",), default="overall",
-                   help="overall metrics, per-challenge SR/NT2F (paper Table 2), or both")
+                   help="overall metrics, per-challenge SR/NT2F (paper Table 2), both of them, or SR/NT2F per "
+                        "sequence attribute of the dataset (pysot's per-attribute analysis)")
     p.add_argument("--no-plots", action="store_true", help="with --out: tables only")
     p.add_argument("--paper", choices=PAPER_TABLES + ("auto",),
                    help="render the paper's table (protocols = Table 1, challenges = 2, ablation = 3, "

@@ -109,6 +109,32 @@ def test_challenge_table_like_paper_table_2(runs):
 
 
 
+def test_the_attribute_table_has_a_column_pair_per_attribute(runs):
+    """pysot's per-attribute analysis (QA pass: scores.json held it, no table showed it).
+    ostrack_mata: s0 (FOC) never lost, s1 (FM) lost at frame 10 of 20; base & co: s0 (POC) lost at
+    5, s1 (OV, SOB) at 15; NT2F = the share of frames before the loss."""
+    md = overview.render_table(runs, "markdown", table="attributes")
+    rows = {r[0]: r[1:] for r in ([c.strip() for c in line.strip("|").split("|")] for line in md.splitlines()
+                                  if line.startswith("|")) if r[0] in ("ostrack_mata", "base & co")}
+    head = [line for line in md.splitlines() if line.startswith("|")][0]
+    columns = [c.strip() for c in head.strip("|").split("|")]
+    assert columns[1::2] == [f"{a} (1) SR" for a in ("FM", "FOC", "OV", "POC", "SOB")]
+    nt2f = {name: cells[1::2] for name, cells in rows.items()}
+    assert nt2f == {"ostrack_mata": ["50.0", "100.0", "-", "-", "-"], "base & co": ["-", "-", "75.0", "25.0", "75.0"]}
+    rows = list(csv.DictReader(io.StringIO(overview.render_table(runs, "csv", table="attributes"))))
+    assert {(r["run"], r["attribute"], float(r["nt2f"])) for r in rows} == {
+        ("ostrack_mata", "FOC", 1.0), ("ostrack_mata", "FM", 0.5),
+        ("base & co", "POC", 0.25), ("base & co", "OV", 0.75), ("base & co", "SOB", 0.75)}
+
+
+def test_a_table_of_runs_without_attributes_says_so():
+    """QA pass: a folder dataset's challenge table was a bare Run column, with no word why."""
+    plain = [run_scores("plain", [20], [set()])]
+    for table in ("challenges", "attributes"):
+        assert "no sequence of these runs has attributes (the dataset gives none)" in overview.render_table(
+            plain, "terminal", table=table)
+
+
 def test_the_challenge_columns_keep_the_papers_order_after_scores_json(tmp_path):
     """QA pass: scores read back from scores.json (keys sorted) put Distractor first."""
     r = run_scores("all", [20, 10, 5, 15], [{"FOC"}, {"SOB"}, {"FM"}, {"OV"}])

@@ -2,7 +2,9 @@
 
 - ``overall``: SR, MSR, PR, P@20, NT2F, block frequencies, excluded frames, failed sequences
   (the paper's Tables 1 and 3);
-- ``challenges``: SR and NT2F per challenge group (the paper's Table 2).
+- ``challenges``: SR and NT2F per challenge group (the paper's Table 2);
+- ``attributes``: SR and NT2F per sequence attribute of the dataset (pysot's per-attribute
+  analysis: UAV123's 12, DTB70's 11, ...).
 
 Metrics print as percentages with one decimal (CSV keeps fractions at full precision); block
 frequencies as scheduled Hz (wall-clock Hz)."""
@@ -19,7 +21,7 @@ from ..score.evaluate import RunScores
 from ..score.metrics import DEFAULT_GROUPS, summarize
 from .tables import FORMATS, Table, hz, pct, render
 
-TABLES = ("overall", "challenges")
+TABLES = ("overall", "challenges", "attributes")
 METRIC_LABELS = (("sr", "SR"), ("msr", "MSR"), ("pr", "PR"), ("precision20", "P@20"), ("nt2f", "NT2F"))
 
 #: The legend printed under the overall table, one line per column (paper section 3.3;
@@ -118,24 +120,44 @@ def overall_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
                  rows, notes=legend, stub_align="l")
 
 
-def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal") -> Table:
-    """SR and NT2F per challenge group; the number of sequences of each group in its header,
-    except in LaTeX (like the paper)."""
-    n = {g: max((r.summary.groups[g].n_sequences for r in runs if g in r.summary.groups), default=0)
-         for g in _group_names(runs)}
-    groups = [g for g in n if n[g] > 0]  # a group no sequence belongs to would be a column of "-"
+def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal", table: str = "challenges") -> Table:
+    """SR and NT2F per challenge group (``table`` "challenges") or per sequence attribute
+    ("attributes"); the number of sequences of each in its header, except in LaTeX (like the
+    paper)."""
+    subsets = _subsets(table)
+    n = {g: max((getattr(r.summary, subsets)[g].n_sequences for r in runs if g in getattr(r.summary, subsets)),
+                default=0) for g in _subset_names(runs, subsets)}
+    names = [g for g in n if n[g] > 0]  # a group no sequence belongs to would be a column of "-"
     rows = []
     for r in runs:
         row = [r.name]
-        for g in groups:
-            s = r.summary.groups.get(g)
+        for g in names:
+            s = getattr(r.summary, subsets).get(g)
             row += [pct(s.sr), pct(s.nt2f)] if s is not None else ["-", "-"]
         rows.append(row)
-    labels = [(f"{g[:1].upper()}{g[1:]}" + ("" if fmt == "latex" else f" ({n[g]})"), 2) for g in groups]
-    note = ("challenge groups: a sequence is in a group when it has one of the group's attributes "
-            "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table")
-    return Table("challenges", "", ["Run"], labels, [c for _ in groups for c in ("SR", "NT2F")], rows,
+    labels = [((f"{g[:1].upper()}{g[1:]}" if subsets == "groups" else g) + ("" if fmt == "latex" else f" ({n[g]})"), 2)
+              for g in names]
+    if not names:
+        note = "no sequence of these runs has attributes (the dataset gives none)"
+    elif subsets == "groups":
+        note = ("challenge groups: a sequence is in a group when it has one of the group's attributes "
+                "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table")
+    else:
+        note = "attributes of the dataset's sequences; (n) = sequences with it; SR and NT2F as in the overall table"
+    return Table(table, "", ["Run"], labels, [c for _ in names for c in ("SR", "NT2F")], rows,
                  notes=[note] if fmt != "latex" else [], stub_align="l")
+
+
+def _subsets(table: str) -> str:
+    """The Summary field the table ``table`` is made of: ``groups`` or ``attributes``."""
+    return "groups" if table == "challenges" else "attributes"
+
+
+def _subset_names(runs: Sequence[RunScores], subsets: str) -> list[str]:
+    """The challenge groups in the paper's order (:func:`_group_names`), or the attributes sorted."""
+    if subsets == "groups":
+        return _group_names(runs)
+    return sorted({a for r in runs for a in r.summary.attributes})
 
 
 def has_challenges(runs: Sequence[RunScores]) -> bool:
@@ -225,16 +247,17 @@ def _csv_table(runs: Sequence[RunScores], table: str) -> Table:
                          *freq, *(str(v) for v in (s.n_frames, s.n_scored, s.n_excluded, s.n_invalid_gt,
                                                    len(r.failures), len(r.missing)))])
     else:
-        cols = ["group", "sequences", *metric_cols]
+        subsets = _subsets(table)
+        cols = ["group" if subsets == "groups" else "attribute", "sequences", *metric_cols]
         for r in runs:
-            for g, s in r.summary.groups.items():
+            for g, s in getattr(r.summary, subsets).items():
                 rows.append([r.name, g, str(s.n_sequences), *(_num(getattr(s, m)) for m in metric_cols)])
     return Table(table, "", ["run"], [], cols, rows)
 
 
 def render_table(runs: Sequence[RunScores], fmt: str = "terminal", table: str = "overall") -> str:
-    """The table of ``runs`` in ``fmt`` (terminal, markdown, csv, latex); ``table`` is
-    ``overall`` or ``challenges``."""
+    """The table of ``runs`` in ``fmt`` (terminal, markdown, csv, latex); ``table`` one of
+    :data:`TABLES`."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown table format {fmt!r}; expected one of {', '.join(FORMATS)}")
     if table not in TABLES:
@@ -242,4 +265,4 @@ def render_table(runs: Sequence[RunScores], fmt: str = "terminal", table: str = 
     runs = list(runs)
     if fmt == "csv":
         return render(_csv_table(runs, table), "csv")
-    return render(overall_table(runs, fmt) if table == "overall" else challenges_table(runs, fmt), fmt)
+    return render(overall_table(runs, fmt) if table == "overall" else challenges_table(runs, fmt, table), fmt)
