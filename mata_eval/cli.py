@@ -294,6 +294,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     print(render_table(all_scores, "terminal"))
     if args.challenges:
         print(render_table(all_scores, "terminal", table="challenges"))
+    if args.attributes:
+        print(render_table(all_scores, "terminal", table="attributes"))
     _print_incomplete(all_scores)
     for scores in all_scores:
         where = f" in {scores.path}" if len(all_scores) > 1 else ""
@@ -735,6 +737,8 @@ def _add_eval(subparsers) -> None:
     p.add_argument("--output", help="also write scores.json into this folder")
     p.add_argument("--no-save", action="store_true", help="do not write scores.json into a mata run folder")
     p.add_argument("--challenges", action="store_true", help="also print the per-challenge table")
+    p.add_argument("--attributes", action="store_true",
+                   help="also print the per-attribute table (SR and NT2F per sequence attribute of the dataset)")
     p.set_defaults(func=cmd_eval)
 
 

@@ -214,11 +214,12 @@ def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(cli, "load_dataset", fake_load)
     out_dir = tmp_path / "scores"
     rc = cli.main(["eval", str(d), "--dataset", "toy", "--root", "/data/toy", "--profile", "pysot-toolkit",
-                   "--output", str(out_dir), "--challenges"])
+                   "--output", str(out_dir), "--challenges", "--attributes"])
     assert rc == 0
     assert calls == {"name": "toy", "root": "/data/toy", "extra": {}}
     text = capsys.readouterr().out
     assert "NT2F" in text and "pysot" in text and "Occlusion" in text
+    assert "FM (1) SR" in text and "POC (1) NT2F" in text   # car1's and car2's attributes
     assert evaluate.load_scores(out_dir).profile == "pysot-toolkit"
 
 
