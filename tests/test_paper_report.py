@@ -398,6 +398,15 @@ def test_mata_minus_baseline_takes_the_baseline_of_its_own_output_and_tracker_ve
     same = make_run(tmp_path / "w", "2-mata", config(mata=True, plugin_versions={"qa-trk": "0.1", "qa-ego": "1"}),
                     {"s": 8})
     assert mata_deltas([r.scores for r in load_runs([old, same])]).rows[0][3] == "+15.0"
+    # a baseline estimator (zoh: baseline = True) makes a baseline too; the tracker alone first
+    # (QA pass: only egomotion: null, estimator: null was taken for one)
+    zoh = make_run(tmp_path / "z", "1-zoh", config(estimator={"name": "zoh"}), {"s": 4})
+    mata = make_run(tmp_path / "z", "2-mata", config(mata=True), {"s": 8})
+    (row,) = mata_deltas([r.scores for r in load_runs([zoh, mata])]).rows
+    assert row[2:4] == ["2-mata - 1-zoh", "+20.0"]
+    alone = make_run(tmp_path / "z", "0-alone", config(), {"s": 6})
+    (row,) = mata_deltas([r.scores for r in load_runs([zoh, mata, alone])]).rows
+    assert row[2:4] == ["2-mata - 0-alone", "+10.0"]
 
 
 def test_ablation_keeps_clean_and_occluded_runs_apart_and_their_numbers(tmp_path):

@@ -181,15 +181,19 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
             configs.append((r, manifest["config"]))
     baselines: dict[str, list[tuple[RunScores, dict]]] = {}
     for r, cfg in configs:
-        if cfg.get("egomotion") is None and cfg.get("estimator") is None:
+        if not is_mata(cfg):   # no estimator, or a ``baseline`` one (zoh)
             baselines.setdefault(_key(cfg), []).append((r, cfg))
     rows, notes = [], []
     for r, cfg in configs:
-        found = [b for b, bcfg in baselines.get(_key(cfg), []) if _same_versions(cfg, bcfg)] if is_mata(cfg) else []
+        if not is_mata(cfg):
+            continue
+        found = [(b, bcfg) for b, bcfg in baselines.get(_key(cfg), []) if _same_versions(cfg, bcfg)]
         if not found:
             continue
-        # two outputs of one experiment (report jetson/* desktop/*): the baseline beside the run
-        base = next((b for b in found if Path(b.path).parent == Path(r.path).parent), found[0])
+        # two outputs of one experiment (report jetson/* desktop/*): the baseline beside the run;
+        # of several, the tracker alone before a baseline estimator (zoh)
+        base, _ = min(found, key=lambda b: (Path(b[0].path).parent != Path(r.path).parent,
+                                            b[1].get("estimator") is not None))
         mine, theirs = r.summary.overall, base.summary.overall
         if set(r.sequences) != set(base.sequences):
             # a sequence that failed (or is missing) in one run only: both means over the
