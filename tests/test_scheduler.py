@@ -444,7 +444,7 @@ NAN_H = np.full((3, 3), np.nan)
     (Motion(NAN_H), "returned a valid motion whose H (or covariance) is not finite or has h33 = 0"),
     (Motion(np.zeros((3, 3))), "returned a valid motion whose H (or covariance) is not finite or has h33 = 0"),
     (Motion(np.eye(3), cov=np.full((9, 9), np.nan)), "returned a valid motion whose H (or covariance) is not finite"),
-    (Motion(np.eye(3), inliers="many"), "returned inliers 'many', sigma None; expected a number"),
+    (Motion(np.eye(3), inliers="many"), "returned inliers 'many', sigma None; expected inliers a number"),
     (None, "expected a Motion, got NoneType"),
 ])
 def test_a_motion_that_breaks_the_motion_type_names_the_egomotion_and_the_frame(motion, words):
@@ -485,6 +485,16 @@ class OddEstimator(LogEstimator):
 def test_an_estimate_that_breaks_the_estimate_type_names_the_estimator(make, words):
     with pytest.raises(BlockError, match=rf"^estimator 'OddEstimator' failed at frame 2 .*: {re.escape(words)}"):
         run_sequence(make_sequence(6), FrameTracker(), None, OddEstimator(make), LTP(), np.random.default_rng(0))
+
+
+def test_a_search_centre_given_as_a_numpy_array_is_taken():
+    """QA pass: Estimate(search=np.array([cx, cy])) was refused (a list or tuple was taken)."""
+    e = Estimate(Box(0.0, 0.0, 4.0, 4.0), search=np.array([np.float32(3.5), 7.0]))
+    assert e.search == (3.5, 7.0) and type(e.search[0]) is float
+    assert e.within(10.0, 10.0).search == (3.5, 7.0)   # (within compared an array: ambiguous truth value)
+    run = run_sequence(make_sequence(6), FrameTracker(), None,
+                       OddEstimator(lambda b: Estimate(b, search=np.array([b.cx, b.cy]))), LTP(), np.random.default_rng(0))
+    assert len(run.boxes) == 6
 
 
 def test_an_empty_estimate_box_is_a_lost_target_not_an_error():

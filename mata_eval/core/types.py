@@ -176,6 +176,13 @@ class Estimate:
     feedback: bool = True
     search: tuple[float, float] | None = None
 
+    def __post_init__(self) -> None:
+        if self.search is not None and type(self.search) is not tuple:   # e.g. a numpy array (cx, cy)
+            try:
+                object.__setattr__(self, "search", tuple(float(v) for v in self.search))
+            except (TypeError, ValueError):
+                pass   # not numbers: the run refuses it, naming the estimator
+
     @property
     def prior(self) -> tuple[float, float] | None:
         """The search centre handed to the tracker: ``search`` or the box centre, None when withheld."""

@@ -734,7 +734,7 @@ def motion_problem(m: Motion) -> str | None:
     if m.cov is not None and (C is None or C.shape != (9, 9)):
         return f"returned a covariance of {_shape(m.cov, C)}; expected 9x9 (row-major vec(H)) or None"
     if not _is_number(m.inliers) or not (m.sigma is None or _is_number(m.sigma)):
-        return f"returned inliers {m.inliers!r}, sigma {m.sigma!r}; expected a number and a number or None"
+        return f"returned inliers {m.inliers!r}, sigma {m.sigma!r}; expected inliers a number, sigma a number or None"
     if m.valid and (not np.isfinite(H).all() or abs(H[2, 2]) < 1e-12 or (C is not None and not np.isfinite(C).all())):
         return (f"returned a valid motion whose H (or covariance) is not finite or has h33 = 0: H = {H.tolist()}; "
                 f"return Motion.invalid() (valid=False) when there is no motion")
