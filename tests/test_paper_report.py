@@ -461,3 +461,18 @@ def test_an_estimator_ablation_that_is_not_a_classmethod_is_named(tmp_path, monk
     with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_instance:Hold': ablation\(params, egomotion\) "
                                              r"is not a classmethod; expected @classmethod .* \(ego-motion used"):
         build_table("ablation", load_runs([d]))
+
+
+def test_an_estimator_ablation_that_raises_is_named(tmp_path, monkeypatch):
+    """QA pass: a classmethod ablation() raising KeyError printed a 31-line traceback and no table."""
+    (tmp_path / "qa_abl_raise.py").write_text(
+        "from dataclasses import dataclass\n"
+        "class Hold:\n    name = 'hold'\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n"
+        "    @classmethod\n    def ablation(cls, params, egomotion): return params['use_motion']\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": "qa_abl_raise:Hold"}), {"s": 5})
+    with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_raise:Hold': ablation\(params, egomotion\) raised "
+                                             r"KeyError: 'use_motion'$"):
+        build_table("ablation", load_runs([d]))

@@ -266,7 +266,11 @@ def _estimator_ablation(ecls: type, est: Mapping[str, Any], egomotion: bool) -> 
     if not isinstance(inspect.getattr_static(ecls, "ablation"), (classmethod, staticmethod)):
         raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) is not a classmethod; "
                              f"{expected}")
-    out = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+    try:
+        out = ecls.ablation({k: v for k, v in est.items() if k != "name"}, egomotion)
+    except Exception as exc:   # the plugin's own bug: named, not a traceback
+        raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) raised "
+                             f"{type(exc).__name__}: {exc}") from exc
     if not (isinstance(out, tuple) and len(out) == 3 and isinstance(out[2], str)):
         raise PlacementError(f"estimator {est.get('name')!r}: ablation(params, egomotion) returned {out!r}; {expected}")
     return bool(out[0]), bool(out[1]), out[2]
