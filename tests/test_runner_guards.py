@@ -240,3 +240,27 @@ def test_a_sequence_name_too_long_for_its_files_is_refused_before_the_run(tmp_pa
         assert ("dataset long_names (the run): 1 of 2 sequences cannot name their result files: sequence name "
                 f"'{'s' * 40}'... is too long for its result files (256 bytes") in err
     assert not (tmp_path / "out").exists()
+
+
+def test_every_block_with_a_close_method_is_closed_after_its_sequence(tmp_path, registry, monkeypatch):
+    """QA pass: only the tracker's close() was called; a block B or C holding a device or a
+    process never released it."""
+    closed = tmp_path / "closed.txt"
+    (tmp_path / "qa_closing.py").write_text(
+        "from dataclasses import dataclass\n"
+        "from mata_eval.types import Estimate, Motion\n"
+        f"LOG = {str(closed)!r}\n"
+        "class Closing:\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def __init__(self, params): pass\n"
+        "    def close(self):\n        open(LOG, 'a').write(type(self).__name__ + '\\n')\n"
+        "class Ego(Closing):\n"
+        "    def initialize(self, image): pass\n    def estimate(self, image): return Motion.identity()\n"
+        "class Hold(Closing):\n"
+        "    def initialize(self, box, t):\n        self.e = Estimate(box)\n        return self.e\n"
+        "    def step(self, t, motions=(), detections=()):\n"
+        "        self.e = Estimate(detections[-1].value.box) if detections else self.e\n        return self.e\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    p = _write(tmp_path, extra="egomotion: {name: 'qa_closing:Ego'}\nestimator: {name: 'qa_closing:Hold'}\n")
+    assert set(_statuses(run_experiment(load_experiment(p, registry), jobs=1, **QUIET)).values()) == {"done"}
+    assert sorted(closed.read_text().split()) == ["Ego"] * 4 + ["Hold"] * 4   # once per sequence each

@@ -167,8 +167,9 @@ def shared(seq: Sequence) -> Sequence:
     return dataclasses.replace(seq, loader=LastFrame(seq.image))
 
 
-def _create(block: PluginBlock | None) -> Any:
-    return None if block is None else block.create()
+def _enter(closing: contextlib.ExitStack, block: PluginBlock | None) -> Any:
+    """A fresh instance of ``block`` (None for none), closed when ``closing`` ends."""
+    return None if block is None else closing.enter_context(block.instance())
 
 
 def _failure(run: str, seq: str, exc: Exception) -> SequenceResult:
@@ -189,13 +190,13 @@ def run_task(exp: Experiment, task: Task) -> list[SequenceResult]:
         base = base_sequences(specs[task.runs[0]])[task.index]
     except Exception as exc:  # e.g. the dataset is missing on this node
         return failed(task, f"{type(exc).__name__}: {exc}", traceback.format_exc())
-    with contextlib.ExitStack() as trackers, warnings.catch_warnings():  # trackers closed however it ends
+    with contextlib.ExitStack() as closing, warnings.catch_warnings():  # blocks closed however it ends
         warnings.simplefilter("ignore", RateWarning)  # the driver reported them once
-        return _lockstep(specs, task, base, trackers)
+        return _lockstep(specs, task, base, closing)
 
 
 def _lockstep(specs: dict[str, RunSpec], task: Task, base: Sequence,
-              trackers: contextlib.ExitStack) -> list[SequenceResult]:
+              closing: contextlib.ExitStack) -> list[SequenceResult]:
     share = len(task.runs) > 1  # a run alone reads its frames itself (a live protocol: from threads)
     base = shared(base) if share else base
     views: dict[str, Sequence] = {}  # occlusion settings -> the sequence as those runs see it
@@ -207,8 +208,7 @@ def _lockstep(specs: dict[str, RunSpec], task: Task, base: Sequence,
             if view not in views:
                 seq = as_run_sees_it(base, spec)
                 views[view] = shared(seq) if share and seq is not base else seq
-            tracker = trackers.enter_context(spec.tracker.instance())
-            blocks = (tracker, _create(spec.egomotion), _create(spec.estimator))
+            blocks = (_enter(closing, spec.tracker), _enter(closing, spec.egomotion), _enter(closing, spec.estimator))
             protocol = spec.protocol.create()
             rng = sequence_seed(spec.seed, base.name)
             if hasattr(protocol, "run_sequence"):  # a protocol that runs the blocks itself (live)
