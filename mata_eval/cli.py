@@ -79,7 +79,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         if not args.output.strip():   # QA pass: `-o ""` fell back to the file's output without a word
             raise UserError("-o/--output: expected a folder, got an empty name")
         exp = dataclasses.replace(exp, output=Path(args.output).resolve())
-    checked = _preflight(exp, args.runs, args.debug)
+    checked = _preflight(exp, args.runs, args.debug, args.sequences)
     if checked is None:   # (before the header: it would announce runs that do not exist)
         return 2
     count = f"{len(set(args.runs))} of {len(exp.runs)}" if args.runs else str(len(exp.runs))
@@ -121,13 +121,14 @@ def _failed_summary(failed: Sequence[Any], shown: int = 5) -> str:
     return "\n".join(lines + ([f"  ... and {len(failed) - shown} more"] if len(failed) > shown else []))
 
 
-def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False) -> Any:
+def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
+               sequences: Sequence[str] | None = None) -> Any:
     """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
     skipped optional run group and per problem (``debug``: raise the first problem's exception,
     with its traceback). Returns the plan, or None when a problem stops the experiment."""
     from .run.preflight import plan, skipped_lines
 
-    checked = plan(exp, only)
+    checked = plan(exp, only, sequences)
     if debug and checked.errors:
         raise checked.errors[0]
     for line in skipped_lines(checked.skipped):

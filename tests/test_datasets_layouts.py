@@ -279,14 +279,17 @@ def test_folder_layout_frame_count_mismatch(tmp_path):
     seq = tmp_path / "data/s1"
     write_frames(seq / "img", 3)
     write_gt(seq / "groundtruth_rect.txt", boxes(4))
-    with pytest.raises(DatasetError, match="4 ground-truth lines but 3 frames"):
-        make(FolderDataset, root=str(tmp_path / "data")).sequences()
+    # the sequence loads (its annotations can be scored) and cannot run: reading a frame says why
+    (s1,) = make(FolderDataset, root=str(tmp_path / "data")).sequences()
+    with pytest.raises(FrameReadError, match="4 ground-truth lines but 3 frames"):
+        s1.image(0)
     # a frame missing in the middle is named (QA pass: only the counts were)
     write_frames(seq / "img", 4)
     missing = sorted((seq / "img").iterdir())[2]
     missing.unlink()
-    with pytest.raises(DatasetError, match=rf"4 ground-truth lines but 3 frames in .* \(missing: {missing.name}\)"):
-        make(FolderDataset, root=str(tmp_path / "data")).sequences()
+    (s1,) = make(FolderDataset, root=str(tmp_path / "data")).sequences()
+    with pytest.raises(FrameReadError, match=rf"4 ground-truth lines but 3 frames in .* \(missing: {missing.name}\)"):
+        s1.image(0)
 
 
 # --- parsers ---------------------------------------------------------------------------------

@@ -100,6 +100,31 @@ def test_a_sequence_without_a_frame_0_box_is_named_before_it_runs_and_when_it_ru
                      np.random.default_rng(0))
 
 
+def test_one_sequence_that_cannot_run_is_named_and_sequences_runs_the_others(tmp_path, capsys):
+    """QA pass: a ground-truth file one line short in one sequence stopped the whole experiment,
+    even with --sequences leaving it out, and validate named only the first such file."""
+    import shutil
+
+    root = _folder_dataset(tmp_path / "data")
+    for name in ("short", "short2"):
+        shutil.copytree(root / "square", root / name)
+        gt = root / name / "groundtruth_rect.txt"
+        gt.write_text("".join(gt.read_text().splitlines(keepends=True)[:-1]))   # 11 lines, 12 frames
+    exp = _write(tmp_path, f"""
+        output: {tmp_path / 'out'}
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        """)
+    assert main(["validate", str(exp)]) == 2
+    err = capsys.readouterr().err
+    assert "2 of 3 sequences cannot run: " in err and "(fix them, or leave them out with --sequences)" in err
+    for name in ("short", "short2"):
+        assert f"{root / name / 'groundtruth_rect.txt'}: 11 ground-truth lines but 12 frames" in err
+    assert main(["run", str(exp), "-j", "1", "-q"]) == 2
+    assert main(["run", str(exp), "-j", "1", "-q", "--sequences", "square", "--no-report"]) == 0
+    assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["square.txt"]
+
+
 def test_optional_runs_are_skipped_with_a_line(tmp_path):
     root = _folder_dataset(tmp_path / "data")
     exp = load_experiment(_write(tmp_path, f"""

@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
-from ..data.datasets.annotations import DatasetError, MissingFrames
+from ..data.datasets.annotations import DatasetError, MissingFrames, UnusableFrames
 from .config import Experiment, PluginBlock, RunSpec
 from .results import sequence_name_problem
 
@@ -47,9 +47,10 @@ def _one_line(exc: BaseException) -> str:
     return lines[0] if lines else type(exc).__name__
 
 
-def check_dataset(block: PluginBlock) -> BaseException | None:
-    """The dataset's sequences load (annotations) and each has its frames on disk. A dataset
-    plugin may instead provide ``check()`` (the synthetic suite: generated on first use)."""
+def check_dataset(block: PluginBlock, only: Iterable[str] | None = None) -> BaseException | None:
+    """The dataset's sequences load (annotations) and each (of ``only``, the names ``--sequences``
+    selects) has its frames on disk, fitting its annotations. A dataset plugin may instead
+    provide ``check()`` (the synthetic suite: generated on first use)."""
     try:
         dataset = block.create()
         if hasattr(dataset, "check"):
@@ -60,6 +61,13 @@ def check_dataset(block: PluginBlock) -> BaseException | None:
         return exc
     if not sequences:
         return DatasetError("no sequences found")
+    if only:
+        sequences = [s for s in sequences if s.name in set(only)]
+    unusable = [s.loader.reason for s in sequences if isinstance(s.loader, UnusableFrames)]
+    if unusable:
+        return DatasetError(f"{len(unusable)} of {len(sequences)} sequences cannot run: "
+                            + "; ".join(unusable[:3]) + (f"; and {len(unusable) - 3} more" if len(unusable) > 3 else "")
+                            + " (fix them, or leave them out with --sequences)")
     bad = [s.name for s in sequences if isinstance(s.loader, MissingFrames)
            or (s.loader is None and not (s.frame_paths and os.path.isfile(s.frame_paths[0])
                                          and os.path.isfile(s.frame_paths[-1])))]
@@ -93,8 +101,9 @@ def check_block(block: PluginBlock) -> BaseException | None:
     return None
 
 
-def find_problems(runs: Iterable[RunSpec]) -> list[Problem]:
-    """Every problem of ``runs``, each distinct plugin block checked once."""
+def find_problems(runs: Iterable[RunSpec], sequences: Iterable[str] | None = None) -> list[Problem]:
+    """Every problem of ``runs`` (over ``sequences``, default all), each distinct plugin block
+    checked once."""
     checked: dict[tuple[str, str], tuple[BaseException | None, list[str]]] = {}
     for spec in runs:
         for key in BLOCK_KEYS:
@@ -103,7 +112,7 @@ def find_problems(runs: Iterable[RunSpec]) -> list[Problem]:
                 continue
             ident = (f"{key} {block.name}", json.dumps(spec.resolved[key], sort_keys=True, default=str))
             if ident not in checked:
-                checked[ident] = (check_dataset(block) if key == "dataset" else check_block(block), [])
+                checked[ident] = (check_dataset(block, sequences) if key == "dataset" else check_block(block), [])
             checked[ident][1].append(spec.name)
     return [Problem(what, tuple(names), _one_line(error), error)
             for (what, _), (error, names) in checked.items() if error is not None]
@@ -116,16 +125,17 @@ def _runs_text(names: tuple[str, ...], n_all: int) -> str:
     return f"run{'s' if len(names) > 1 else ''} {shown}"
 
 
-def plan(exp: Experiment, only: Iterable[str] | None = None) -> Plan:
-    """Check the selected runs (``only``: run names; default all) and sort them into runs to do,
-    optional runs to skip, and problems that stop the experiment."""
+def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable[str] | None = None) -> Plan:
+    """Check the selected runs (``only``: run names; default all) over the selected sequences
+    (``sequences``: names; default all) and sort them into runs to do, optional runs to skip,
+    and problems that stop the experiment."""
     only = list(only or [])
     known = {r.name for r in exp.runs}
     unknown = [n for n in only if n not in known]
     if unknown:
         return Plan((), (), (f"unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
     specs = [r for r in exp.runs if not only or r.name in only]
-    problems = find_problems(specs)
+    problems = find_problems(specs, sequences)
     by_name = {r.name: r for r in specs}
     skipped: dict[str, Problem] = {}
     stopping = []

@@ -370,6 +370,21 @@ class MissingFrames:
                              f"in {' or '.join(self.looked_in)} (only the annotations are present)")
 
 
+class UnusableFrames:
+    """``Sequence.loader`` for a sequence whose frames do not fit its annotations (e.g. a line
+    missing from its ground-truth file): the dataset still loads, its annotations can be scored,
+    the preflight names ``reason`` (``--sequences`` runs the others) and a run of it fails with
+    it. Picklable, like :class:`MissingFrames`."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+
+    def __call__(self, k: int) -> np.ndarray:
+        from ...core.sequence import FrameReadError
+
+        raise FrameReadError(self.reason)
+
+
 def annotation_files(folder: Path, suffix: str = ".txt") -> list[Path]:
     """``*<suffix>`` files of an annotation folder, without the kits' README / ATTRIBUTE_ORDER."""
     return sorted(p for p in folder.glob(f"*{suffix}") if p.is_file()

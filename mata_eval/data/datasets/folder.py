@@ -16,8 +16,8 @@ from pathlib import Path
 from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
-from .annotations import (DatasetError, MissingFrames, check_fps, list_images, numbering_gaps, read_boxes,
-                          select)
+from .annotations import (DatasetError, MissingFrames, UnusableFrames, check_fps, list_images, numbering_gaps,
+                          read_boxes, select)
 
 
 class FolderDataset:
@@ -71,10 +71,11 @@ class FolderDataset:
                 frames = list_images(c)
                 if frames:
                     break
-            if frames and len(frames) != len(gt):
-                raise DatasetError(f"{gt_path}: {len(gt)} ground-truth lines but {len(frames)} frames in "
-                                   f"{Path(frames[0]).parent}{numbering_gaps([Path(f).name for f in frames])}; "
-                                   "expected one line per frame")
+            if frames and len(frames) != len(gt):   # this sequence cannot run; the others can
+                out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, loader=UnusableFrames(
+                    f"{gt_path}: {len(gt)} ground-truth lines but {len(frames)} frames in {Path(frames[0]).parent}"
+                    f"{numbering_gaps([Path(f).name for f in frames])}; expected one line per frame")))
+                continue
             out.append(Sequence(name=name, groundtruth=gt, fps=self.params.fps, frame_paths=tuple(frames),
                                 loader=None if frames else MissingFrames(name, cands)))
         return out
