@@ -114,7 +114,7 @@ def test_a_rerun_refuses_to_keep_results_made_on_other_ground_truth(workdir, cap
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
     err = capsys.readouterr().err
     assert (f"{run} holds results of 1 sequence(s) whose ground truth changed since they were made (a): "
-            f"their tracker started from the old box; rerun with --runs exp --force --sequences a to redo them") in err
+            f"their tracker started from the old box; rerun with --force --sequences a to redo them") in err
     np.testing.assert_allclose(read_boxes(run / "a.txt"), [[2, 3, 4, 5]] * N)   # nothing redone or kept silently
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--force", "--sequences", "a"]) == 0
     np.testing.assert_allclose(read_boxes(run / "a.txt"), [[202, 3, 4, 5]] * N)  # started from the new box

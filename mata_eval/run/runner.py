@@ -151,7 +151,7 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
         raise ResultsConflict(
             f"{out} holds results of {len(changed)} sequence(s) whose ground truth changed since they were "
             f"made ({', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}): their tracker started from "
-            f"the old box; rerun with --runs {spec.name} --force --sequences {names} to redo them, or change "
+            f"the old box; rerun with --force --sequences {names} to redo them, or change "
             f"`output` in {exp.path}")
     return record
 
