@@ -57,11 +57,11 @@ def main(argv: list[str]) -> int:
 
 @pytest.fixture
 def workdir(tmp_path, monkeypatch):
-    """`my_trackers/stay.py`, sequences a and b (4 frames, the target at 2,3,4,5), exp.yaml;
+    """`gt_change_trackers/stay.py`, sequences a and b (4 frames, the target at 2,3,4,5), exp.yaml;
     mata-eval runs there, and has run once."""
-    (tmp_path / "my_trackers").mkdir()
-    (tmp_path / "my_trackers" / "__init__.py").write_text("")
-    (tmp_path / "my_trackers" / "stay.py").write_text(textwrap.dedent(STAY))
+    (tmp_path / "gt_change_trackers").mkdir()
+    (tmp_path / "gt_change_trackers" / "__init__.py").write_text("")
+    (tmp_path / "gt_change_trackers" / "stay.py").write_text(textwrap.dedent(STAY))
     for name in ("a", "b"):
         seq = tmp_path / "data" / name
         (seq / "img").mkdir(parents=True)
@@ -69,7 +69,7 @@ def workdir(tmp_path, monkeypatch):
             cv2.imwrite(str(seq / "img" / f"{k:04d}.png"), np.zeros((20, 30, 3), np.uint8))
         (seq / "groundtruth_rect.txt").write_text(BOX * N)
     (tmp_path / "exp.yaml").write_text("output: out\ndataset: {name: folder, root: data}\n"
-                                       "tracker: {name: 'my_trackers.stay:Stay'}\n")
+                                       "tracker: {name: 'gt_change_trackers.stay:Stay'}\n")
     monkeypatch.chdir(tmp_path)
     monkeypatch.syspath_prepend(str(tmp_path / "nowhere"))  # restores sys.path after the test
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
