@@ -319,8 +319,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
 def _print_incomplete(runs: Sequence) -> None:
     """After a table: the sequences each scored run has no results for (an interrupted run, a
     results folder short of the dataset; its row averages only the others), the frames it
-    skipped as unreadable (``on_bad_frame: skip``: not scored), and rows scored under different
-    metric profiles (their numbers do not compare)."""
+    skipped as unreadable (``on_bad_frame: skip``: not scored), the sequences run on other ground
+    truth than they are scored on, and rows scored under different metric profiles (their numbers
+    do not compare)."""
     profiles: dict[str, list[str]] = {}
     for scores in runs:
         profiles.setdefault(scores.profile, []).append(scores.name)
@@ -339,6 +340,11 @@ def _print_incomplete(runs: Sequence) -> None:
         if scores.missing:
             print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
                   + (" ..." if len(scores.missing) > 10 else ""))
+        other = scores.meta.get("other_groundtruth") or []
+        if other:
+            print(f"{len(other)} sequence(s){where} were run on other ground truth than they are scored on here (their "
+                  f"tracker started from another box): {', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
+                  + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
         bad = scores.meta.get("bad_frames") or {}
         if bad:
             print(f"{sum(bad.values())} unreadable frame(s) skipped and not scored (on_bad_frame: skip){where}: "

@@ -14,11 +14,14 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
 
 import numpy as np
 
 from ..core.errors import UserError
+
+if TYPE_CHECKING:
+    from ..core.sequence import Sequence
 
 MANIFEST = "manifest.json"
 _UMASK = os.umask(0)
@@ -249,6 +252,26 @@ def _sha256(path: str, size: int, mtime_ns: int) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+def groundtruth_sha256(seq: Sequence) -> str:
+    """sha256 of a sequence's annotations as a run reads them: every ground-truth box as float64
+    (frame 0 starts the tracker; the occlusion augmentation places its occluders from them all),
+    the ``annotated`` mask and the ``init`` box when it has them."""
+    digest = hashlib.sha256(np.ascontiguousarray(seq.groundtruth, dtype=np.float64).tobytes())
+    if seq.annotated is not None:
+        digest.update(b"annotated" + np.ascontiguousarray(seq.annotated, dtype=bool).tobytes())
+    if seq.init is not None:
+        digest.update(b"init" + np.array([seq.init.x, seq.init.y, seq.init.w, seq.init.h], np.float64).tobytes())
+    return digest.hexdigest()
+
+
+def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence]) -> list[str]:
+    """The sequences whose ground truth differs from ``recorded`` (sequence -> digest, as a
+    manifest or a scores.json keeps it); a sequence without a record (older mata-eval) is not
+    compared."""
+    recorded = recorded if isinstance(recorded, dict) else {}
+    return [s.name for s in sequences if s.name in recorded and recorded[s.name] != groundtruth_sha256(s)]
 
 
 def package_versions() -> dict[str, str]:

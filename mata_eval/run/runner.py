@@ -133,9 +133,37 @@ def _change(old: dict, spec: RunSpec) -> str:
     return "" if change is None else f"{change}; "
 
 
-def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = ()) -> Path:
+def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: bool,
+                       only: list[str] | None = None) -> dict[str, str]:
+    """Sequence -> sha256 of its ground truth (:func:`results.groundtruth_sha256`) for the
+    manifest: today's for a sequence this run computes (``force``: the finished ones too, of
+    ``only`` if given), the recorded one for a finished sequence it keeps. Refuses a kept
+    sequence whose ground truth changed since it was made (its tracker started from the old
+    frame-0 box), as a changed model file is refused; one made by an older mata-eval (no
+    record) is kept without one."""
+    out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
+    record, changed = {}, []
+    for seq in load_sequences(spec):
+        if not results.is_finished(out, seq.name) or (force and (not only or seq.name in only)):
+            record[seq.name] = results.groundtruth_sha256(seq)
+        elif seq.name in before:
+            record[seq.name] = before[seq.name]
+            changed += results.changed_groundtruth(before, [seq])
+    if changed:
+        names = " ".join(changed)
+        raise ResultsConflict(
+            f"{out} holds results of {len(changed)} sequence(s) whose ground truth changed since they were "
+            f"made ({', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}): their tracker started from "
+            f"the old box; rerun with --force --sequences {names} to redo them, or change "
+            f"`output` in {exp.path}")
+    return record
+
+
+def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
+                    only: list[str] | None = None) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
-    to mix results of another configuration, or of other model files or preset values."""
+    to mix results of another configuration, of other model files or preset values, or made
+    on other ground truth (``only``: the sequences ``force`` redoes, default all)."""
     out = run_dir(exp, spec)
     inputs = json.loads(json.dumps({"model_files": model_files(spec), "preset_values": preset_values(spec)}))
     try:
@@ -163,6 +191,7 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise ResultsConflict(f"{out} holds results {changed}; rerun with --force to replace them, "
                                   f"or change `output` in {exp.path}")
         results.clear_run(out)
+    inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(Path(exp.path).resolve()),
@@ -324,7 +353,7 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
         notes = protocol_warnings(spec)
         for message in notes:
             log(f"warning: {spec.name}: {message}")
-        out = prepare_run_dir(exp, spec, force, notes)
+        out = prepare_run_dir(exp, spec, force, notes, sequences)
         for i, seq in enumerate(load_sequences(spec)):
             if sequences and seq.name not in sequences:
                 continue

@@ -24,9 +24,10 @@ from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
+from ..core.errors import UserError
 from ..core.sequence import Sequence
 from ..run import results
-from ..run.config import Experiment
+from ..run.config import Experiment, RunSpec
 from . import metrics
 from .metrics import Aggregate, BlockFrequency, SequenceScores
 
@@ -348,6 +349,7 @@ def evaluate_results(
                  f"--runs {manifest.get('run')} --force --sequences")
         unscorable = {k: f"{why}; to run it again: {again} {k}" for k, why in unscorable.items()}
     dataset = (manifest.get("config") or {}).get("dataset")
+    scored = [s for s in sequences if s.name in per_seq]
     meta = {
         "experiment": manifest.get("experiment"),
         "config_hash": manifest.get("config_hash"),
@@ -355,6 +357,9 @@ def evaluate_results(
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
         "unscorable": unscorable,   # sequence -> why its results cannot be scored (counted as failed)
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
+        "groundtruth": {s.name: results.groundtruth_sha256(s) for s in scored},   # what a report compares
+        # sequences whose tracker results were made on other ground truth (the manifest's record)
+        "other_groundtruth": results.changed_groundtruth(manifest.get("groundtruth"), scored),
     }
     return RunScores(
         name=name or manifest.get("run") or d.name,
@@ -433,10 +438,11 @@ class ScoresUnavailable(RuntimeError):
     """A run folder has no scores.json and cannot be evaluated from here."""
 
 
-def scores_for(run_dir: Path) -> RunScores:
+def scores_for(run_dir: Path, log: Callable[[str], None] = print) -> RunScores:
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
-    experiment file can still be loaded and it has no scores.json, or one that does not cover
-    its finished and failed sequences (:func:`stale_reason`); otherwise
+    experiment file can still be loaded and it has no scores.json, one that does not cover its
+    finished and failed sequences (:func:`stale_reason`), or one scored on ground truth the
+    dataset no longer has (:func:`changed_since_scored`; ``log`` says so); otherwise
     :class:`ScoresUnavailable` says what to do."""
     d = Path(run_dir).resolve()
     if not d.exists():
@@ -448,28 +454,57 @@ def scores_for(run_dir: Path) -> RunScores:
     if (d / SCORES).is_file():
         scores = load_scores(d)
         stale = stale_reason(scores, d) if manifest is not None else None
-        if stale is None:
+        changed = changed_since_scored(scores, d, manifest) if stale is None and manifest is not None else []
+        if stale is None and not changed:
             return scores
+        if changed:
+            log(f"{d}: scored again: the ground truth of {', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''} "
+                f"changed since its {SCORES} was written")
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
     if manifest is None:
         raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); {hint}")
     what = f"its {SCORES} is out of date ({stale})" if stale else f"no {SCORES}"
-    exp_file = manifest.get("experiment_file")
-    if not exp_file or not Path(exp_file).is_file():
-        raise ScoresUnavailable(f"{d}: {what}, and the experiment file {exp_file!r} named in its "
-                                f"manifest cannot be read; {hint}")
-    from ..run.config import load_experiment
     from ..run.runner import load_sequences
 
     with results.in_run_cwd(manifest):   # its relative dataset root, not this folder's namesake
-        exp = load_experiment(exp_file)
-        spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
-        if spec is None:
-            raise ScoresUnavailable(f"{d}: {what}, and run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
-        if spec.config_hash != manifest.get("config_hash"):
-            raise ScoresUnavailable(f"{d}: {what}, and {exp_file} now describes run {spec.name!r} differently "
-                                    f"(config hash changed); {hint}")
+        spec = _run_spec(d, manifest, f"{d}: {what}, and", hint)
         return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
+
+
+def _run_spec(d: Path, manifest: dict, what: str, hint: str) -> RunSpec:
+    """The run of the experiment file its manifest names, as it ran (same configuration hash);
+    :class:`ScoresUnavailable` (``what``: its start) when the file, the run or its configuration
+    is not that one any more. Relative paths: inside :func:`results.in_run_cwd`."""
+    from ..run.config import load_experiment
+
+    exp_file = manifest.get("experiment_file")
+    if not exp_file or not Path(exp_file).is_file():
+        raise ScoresUnavailable(f"{what} the experiment file {exp_file!r} named in its manifest cannot be read; {hint}")
+    exp = load_experiment(exp_file)
+    spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
+    if spec is None:
+        raise ScoresUnavailable(f"{what} run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
+    if spec.config_hash != manifest.get("config_hash"):
+        raise ScoresUnavailable(f"{what} {exp_file} now describes run {spec.name!r} differently "
+                                f"(config hash changed); {hint}")
+    return spec
+
+
+def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> list[str]:
+    """The sequences whose ground truth (its sha256, ``meta["groundtruth"]``) differs from their
+    annotations now (read once per dataset and process). Empty when the scores have no record
+    (an older mata-eval) or the experiment or its dataset cannot be read (a copied folder): the
+    scores are trusted then."""
+    from ..run.tasks import base_sequences
+
+    if not scores.meta.get("groundtruth"):
+        return []
+    try:
+        with results.in_run_cwd(manifest):
+            spec = _run_spec(Path(run_dir), manifest, "", "")
+            return results.changed_groundtruth(scores.meta["groundtruth"], base_sequences(spec))
+    except (UserError, RuntimeError, OSError, ValueError, KeyError):   # ScoresUnavailable is a RuntimeError
+        return []
 
 
 def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[RunScores]:

@@ -1,0 +1,159 @@
+"""An edited ground-truth file is noticed (QA pass: never noticed, so tables were silently wrong):
+`report` scores a run again when the ground truth of a scored sequence changed (and again once it
+is restored), a rerun refuses to keep results whose tracker started from the old box, and `eval`
+says which sequences were run on other ground truth. An older run folder without the record
+still resumes and reports; a copied folder whose experiment cannot be read is trusted.
+
+The tracker `Stay` returns the box it started from, and each sequence's target stands still at
+2,3,4,5: every predicted box is the ground truth (IoU 1, SR 1) until the ground truth moves by
+200 px (IoU 0, SR 0)."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+
+import cv2
+import numpy as np
+import pytest
+
+from mata_eval import cli
+from mata_eval.data.datasets.annotations import read_boxes
+from mata_eval.run import runner, tasks
+
+STAY = '''
+    from dataclasses import dataclass
+
+    from mata_eval.types import TrackerOutput
+
+
+    class Stay:
+        """Returns the box it started from."""
+
+        @dataclass(frozen=True)
+        class Params:
+            pass
+
+        def __init__(self, params):
+            pass
+
+        def initialize(self, image, box):
+            self.box = box
+
+        def track(self, image, prior=None):
+            return TrackerOutput(self.box, 1.0)
+'''
+
+BOX, MOVED = "2,3,4,5\n", "202,3,4,5\n"
+N = 4
+
+
+def main(argv: list[str]) -> int:
+    """``mata-eval ARGV``, as a process of its own: the annotations its caches hold are read anew."""
+    tasks._BASE.clear()
+    runner._SEQUENCES.clear()
+    return cli.main(argv)
+
+
+@pytest.fixture
+def workdir(tmp_path, monkeypatch):
+    """`gt_change_trackers/stay.py`, sequences a and b (4 frames, the target at 2,3,4,5), exp.yaml;
+    mata-eval runs there, and has run once."""
+    (tmp_path / "gt_change_trackers").mkdir()
+    (tmp_path / "gt_change_trackers" / "__init__.py").write_text("")
+    (tmp_path / "gt_change_trackers" / "stay.py").write_text(textwrap.dedent(STAY))
+    for name in ("a", "b"):
+        seq = tmp_path / "data" / name
+        (seq / "img").mkdir(parents=True)
+        for k in range(N):
+            cv2.imwrite(str(seq / "img" / f"{k:04d}.png"), np.zeros((20, 30, 3), np.uint8))
+        (seq / "groundtruth_rect.txt").write_text(BOX * N)
+    (tmp_path / "exp.yaml").write_text("output: out\ndataset: {name: folder, root: data}\n"
+                                       "tracker: {name: 'gt_change_trackers.stay:Stay'}\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(tmp_path / "nowhere"))  # restores sys.path after the test
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    return tmp_path
+
+
+def _move(workdir, box=MOVED):
+    (workdir / "data" / "a" / "groundtruth_rect.txt").write_text(box * N)
+
+
+def _sr(run) -> dict:
+    scores = json.loads((run / "scores.json").read_text())
+    return {"overall": scores["summary"]["overall"]["sr"], **{k: v["sr"] for k, v in scores["sequences"].items()}}
+
+
+def test_report_scores_again_when_the_ground_truth_changed_and_when_it_is_restored(workdir, capsys):
+    run = workdir / "out" / "exp"
+    assert main(["report", str(run)]) == 0
+    assert _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
+    capsys.readouterr()
+    _move(workdir)
+    assert main(["report", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert f"{run}: scored again: the ground truth of a changed since its scores.json was written" in out
+    assert _sr(run) == {"overall": 0.5, "a": 0.0, "b": 1.0}    # a's boxes 200 px off its new ground truth
+    assert "1 sequence(s) were run on other ground truth than they are scored on here" in out
+    assert "--force --sequences a to run them on this one" in out
+    _move(workdir, BOX)                                         # restored: the first numbers again
+    assert main(["report", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "scored again: the ground truth of a changed" in out and "other ground truth" not in out
+    assert _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
+    assert main(["report", str(run)]) == 0                      # unchanged since: trusted
+    assert "scored again" not in capsys.readouterr().out
+
+
+def test_a_rerun_refuses_to_keep_results_made_on_other_ground_truth(workdir, capsys):
+    run = workdir / "out" / "exp"
+    b_before = (run / "b.txt").read_text()
+    _move(workdir)
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
+    err = capsys.readouterr().err
+    assert (f"{run} holds results of 1 sequence(s) whose ground truth changed since they were made (a): "
+            f"their tracker started from the old box; rerun with --force --sequences a to redo them") in err
+    np.testing.assert_allclose(read_boxes(run / "a.txt"), [[2, 3, 4, 5]] * N)   # nothing redone or kept silently
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--force", "--sequences", "a"]) == 0
+    np.testing.assert_allclose(read_boxes(run / "a.txt"), [[202, 3, 4, 5]] * N)  # started from the new box
+    assert (run / "b.txt").read_text() == b_before
+    assert _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0       # recorded: kept now
+    assert "2 finished sequence(s) kept" in capsys.readouterr().out
+
+
+def test_eval_names_the_sequences_run_on_other_ground_truth(workdir, capsys):
+    run = workdir / "out" / "exp"
+    capsys.readouterr()
+    assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0
+    assert "other ground truth" not in capsys.readouterr().out
+    _move(workdir)
+    assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0
+    out = capsys.readouterr().out
+    assert ("1 sequence(s) were run on other ground truth than they are scored on here (their tracker started "
+            "from another box): a; rerun them with --force --sequences a to run them on this one") in out
+    assert _sr(run) == {"overall": 0.5, "a": 0.0, "b": 1.0}
+
+
+def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_trusted(workdir, capsys):
+    """As an older mata-eval wrote it: no `groundtruth` in manifest.json or scores.json."""
+    run = workdir / "out" / "exp"
+    assert main(["report", str(run)]) == 0
+    for name, key in (("manifest.json", None), ("scores.json", "meta")):
+        data = json.loads((run / name).read_text())
+        (data[key] if key else data).pop("groundtruth")
+        (run / name).write_text(json.dumps(data))
+    _move(workdir)                        # not compared: nothing says what the results were made on
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    assert "2 finished sequence(s) kept" in capsys.readouterr().out
+    assert main(["report", str(run)]) == 0
+    assert "scored again" not in capsys.readouterr().out and _sr(run)["a"] == 1.0
+    assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0   # with the record now
+    assert _sr(run)["a"] == 0.0
+    _move(workdir, BOX)
+    (workdir / "exp.yaml").unlink()       # a copied folder: its experiment cannot be read, scores.json trusted
+    assert main(["report", str(run)]) == 0
+    assert "scored again" not in capsys.readouterr().out and _sr(run)["a"] == 0.0
