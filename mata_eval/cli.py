@@ -89,7 +89,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                               progress=not args.quiet, executor=_executor(args))
     failed = [o for o in outcomes if o.status == "failed"]
     if failed:  # printed before the table too: the table does not show what is missing from it
-        print(_failed_summary(failed), file=sys.stderr)
+        print(f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json", file=sys.stderr)
     if args.no_report:
         return 1 if failed else 0
     from .report.overview import has_challenges, render_table
@@ -109,16 +109,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     for p in plots:
         print(f"plot: {p}")
     if failed:
-        print(_failed_summary(failed))
+        print(f"{len(failed)} sequence(s) failed (FAILED lines above say why); see <run>/<sequence>.failed.json")
     unscorable = _print_unscorable(scores)
     return 1 if failed or unscorable else 0
-
-
-def _failed_summary(failed: Sequence[Any], shown: int = 5) -> str:
-    """How many sequences failed, and why for the first ``shown`` (one line each)."""
-    lines = [f"{len(failed)} sequence(s) failed; see <run>/<sequence>.failed.json"]
-    lines += [f"  {o.run}/{o.sequence}: {' '.join(o.reason.split())[:300]}" for o in failed[:shown]]
-    return "\n".join(lines + ([f"  ... and {len(failed) - shown} more"] if len(failed) > shown else []))
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
