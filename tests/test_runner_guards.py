@@ -261,3 +261,12 @@ def test_every_block_with_a_close_method_is_closed_after_its_sequence(tmp_path, 
     p = _write(tmp_path, extra="egomotion: {name: 'qa_closing:Ego'}\nestimator: {name: 'qa_closing:Hold'}\n")
     assert set(_statuses(run_experiment(load_experiment(p, registry), jobs=1, **QUIET)).values()) == {"done"}
     assert sorted(closed.read_text().split()) == ["Ego"] * 4 + ["Hold"] * 4   # once per sequence each
+    # a close() that raises is a warning naming the plugin, not the end of the experiment (review:
+    # the error left run_task, and the other runs of the sequence were never written)
+    (tmp_path / "qa_closing_bad.py").write_text(
+        "from qa_closing import Ego\nclass BadEgo(Ego):\n    def close(self):\n        raise OSError('device gone')\n")
+    p = _write(tmp_path, extra="matrix:\n  egomotion:\n    none: null\n    bad: {name: 'qa_closing_bad:BadEgo'}\n")
+    with pytest.warns(UserWarning, match=r"egomotion qa_closing_bad:BadEgo: close\(\) raised OSError: device gone"):
+        outcomes = run_experiment(load_experiment(p, registry), jobs=1, force=True, **QUIET)
+    assert {(o.run, o.status) for o in outcomes} == {("none", "done"), ("bad", "done")}
+    assert len(outcomes) == 8

@@ -43,6 +43,7 @@ import hashlib
 import importlib.metadata as md
 import itertools
 import json
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
@@ -88,14 +89,19 @@ class PluginBlock:
     @contextlib.contextmanager
     def instance(self) -> Iterator[Any]:
         """A fresh instance whose ``close()``, if the plugin has one (a tracker process, a
-        device), runs when the ``with`` block ends, however it ends."""
+        device), runs when the ``with`` block ends, however it ends; a ``close()`` that raises
+        is a warning naming the plugin (the results it made stand, the other runs go on)."""
         obj = self.create()
         try:
             yield obj
         finally:
             close = getattr(obj, "close", None)
             if callable(close):
-                close()
+                try:
+                    close()
+                except Exception as exc:
+                    warnings.warn(f"{self.kind} {self.name}: close() raised {type(exc).__name__}: {exc}",
+                                  stacklevel=2)
 
 
 @dataclasses.dataclass(frozen=True)
