@@ -506,6 +506,7 @@ def cmd_per_sequence(args: argparse.Namespace) -> int:
 def cmd_augment(args: argparse.Namespace) -> int:
     from .core.params import build_params
     from .core.registry import load_registry
+    from .core.sequence import FrameReadError
     from .data.occlusion import OcclusionParams, write_augmented
 
     values: dict = {}
@@ -552,7 +553,7 @@ def cmd_augment(args: argparse.Namespace) -> int:
     try:
         names = write_augmented(sequences, args.out, params, args.seed, quality=args.quality, progress=True,
                                 overwrite=args.force)
-    except FileExistsError as e:
+    except (FileExistsError, FrameReadError) as e:   # (a frame missing, or a sequence that cannot run)
         print(f"mata-eval augment: {e}")
         return 2
     print(f"wrote {len(names)} augmented sequences to {args.out} (contact sheets in {Path(args.out) / 'contact_sheets'})")

@@ -123,6 +123,20 @@ def test_one_sequence_that_cannot_run_is_named_and_sequences_runs_the_others(tmp
     assert main(["run", str(exp), "-j", "1", "-q"]) == 2
     assert main(["run", str(exp), "-j", "1", "-q", "--sequences", "square", "--no-report"]) == 0
     assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["square.txt"]
+    # with the occlusion augmentation too, and a sequence without frames (review: the augmentation
+    # read frame 0 of every sequence, also those --sequences left out: a traceback)
+    _folder_dataset(tmp_path / "bare", frames=False)
+    shutil.copytree(tmp_path / "bare" / "square", root / "bare")
+    occ = _write(tmp_path, f"""
+        output: {tmp_path / 'occ'}
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        occlusion: {{}}
+        """)
+    assert main(["run", str(occ), "-j", "1", "-q", "--sequences", "square", "--no-report"]) == 0
+    assert main(["augment", str(tmp_path / "aug"), "--dataset", "folder", "--root", str(root)]) == 2
+    last = capsys.readouterr().out.strip().splitlines()[-1]   # one line, not a traceback
+    assert last.startswith("mata-eval augment: ") and ("ground-truth lines" in last or "only the annotations" in last)
 
 
 def test_optional_runs_are_skipped_with_a_line(tmp_path):

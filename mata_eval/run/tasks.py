@@ -137,8 +137,12 @@ def base_sequences(spec: RunSpec) -> list[Sequence]:
 
 
 def as_run_sees_it(seq: Sequence, spec: RunSpec) -> Sequence:
-    """``seq`` with the run's occlusion augmentation (composited when a frame is read), if any."""
-    if spec.occlusion is None:
+    """``seq`` with the run's occlusion augmentation (composited when a frame is read), if any;
+    a sequence without usable frames as it is (its run fails, naming why, when it reads frame 0;
+    the augmentation would read it for every run now, also of sequences ``--sequences`` leaves out)."""
+    from ..data.datasets.annotations import MissingFrames, UnusableFrames
+
+    if spec.occlusion is None or isinstance(seq.loader, (MissingFrames, UnusableFrames)):
         return seq
     from ..data.occlusion import augment_sequence
 
