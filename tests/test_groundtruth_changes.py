@@ -92,18 +92,20 @@ def test_report_scores_again_when_the_ground_truth_changed_and_when_it_is_restor
     capsys.readouterr()
     _move(workdir)
     assert main(["report", str(run)]) == 0
-    out = capsys.readouterr().out
-    assert f"{run}: scored again: the ground truth of a changed since its scores.json was written" in out
+    out, err = capsys.readouterr()
+    assert (f"{run}: scored again against the experiment's annotations: those of a differ from the ones its "
+            f"scores.json was scored on") in err
     assert _sr(run) == {"overall": 0.5, "a": 0.0, "b": 1.0}    # a's boxes 200 px off its new ground truth
     assert "1 sequence(s) were run on other ground truth than they are scored on here" in out
     assert "--force --sequences a to run them on this one" in out
     _move(workdir, BOX)                                         # restored: the first numbers again
     assert main(["report", str(run)]) == 0
-    out = capsys.readouterr().out
-    assert "scored again: the ground truth of a changed" in out and "other ground truth" not in out
+    out, err = capsys.readouterr()
+    assert "scored again against the experiment's annotations: those of a differ" in err
+    assert "other ground truth" not in out
     assert _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
     assert main(["report", str(run)]) == 0                      # unchanged since: trusted
-    assert "scored again" not in capsys.readouterr().out
+    assert "scored again" not in capsys.readouterr().err
 
 
 def test_a_rerun_refuses_to_keep_results_made_on_other_ground_truth(workdir, capsys):
@@ -114,7 +116,7 @@ def test_a_rerun_refuses_to_keep_results_made_on_other_ground_truth(workdir, cap
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
     err = capsys.readouterr().err
     assert (f"{run} holds results of 1 sequence(s) whose ground truth changed since they were made (a): "
-            f"their tracker started from the old box; rerun with --force --sequences a to redo them") in err
+            f"their tracker started from another box; rerun with --force --sequences a to redo them") in err
     np.testing.assert_allclose(read_boxes(run / "a.txt"), [[2, 3, 4, 5]] * N)   # nothing redone or kept silently
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--force", "--sequences", "a"]) == 0
     np.testing.assert_allclose(read_boxes(run / "a.txt"), [[202, 3, 4, 5]] * N)  # started from the new box
@@ -133,7 +135,8 @@ def test_eval_names_the_sequences_run_on_other_ground_truth(workdir, capsys):
     assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0
     out = capsys.readouterr().out
     assert ("1 sequence(s) were run on other ground truth than they are scored on here (their tracker started "
-            "from another box): a; rerun them with --force --sequences a to run them on this one") in out
+            "from another box, or occluders were placed from other boxes): a; rerun them with --force --sequences a "
+            "to run them on this one") in out
     assert _sr(run) == {"overall": 0.5, "a": 0.0, "b": 1.0}
 
 
@@ -150,10 +153,36 @@ def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_tru
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
     assert "2 finished sequence(s) kept" in capsys.readouterr().out
     assert main(["report", str(run)]) == 0
-    assert "scored again" not in capsys.readouterr().out and _sr(run)["a"] == 1.0
+    assert "scored again" not in capsys.readouterr().err and _sr(run)["a"] == 1.0
     assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0   # with the record now
     assert _sr(run)["a"] == 0.0
     _move(workdir, BOX)
     (workdir / "exp.yaml").unlink()       # a copied folder: its experiment cannot be read, scores.json trusted
     assert main(["report", str(run)]) == 0
-    assert "scored again" not in capsys.readouterr().out and _sr(run)["a"] == 0.0
+    assert "scored again" not in capsys.readouterr().err and _sr(run)["a"] == 0.0
+
+
+def test_a_box_the_run_did_not_read_changes_the_scores_not_the_results(workdir, capsys):
+    """Review: without the occlusion augmentation a run reads only the start box; a later box
+    fixed by hand was refused as if the tracker had started elsewhere."""
+    run = workdir / "out" / "exp"
+    (workdir / "data" / "a" / "groundtruth_rect.txt").write_text(BOX * (N - 1) + MOVED)   # the last frame's only
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "2 finished sequence(s) kept" in out and "other ground truth" not in out
+    assert _sr(run) == {"overall": 0.875, "a": 0.75, "b": 1.0}   # a: 3 of 4 frames still on the target
+
+
+def test_a_report_does_not_build_a_generated_dataset_to_compare_it(tmp_path, monkeypatch, capsys):
+    """Review: the comparison read the dataset on every report, and the synthetic suite is built
+    when read: a report of an up-to-date run generated the whole suite into an emptied cache."""
+    import shutil
+
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    (tmp_path / "exp.yaml").write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, "
+                                       "n_frames: 12, width: 160, height: 120}\ntracker: {name: kcf}\n")
+    assert main(["run", str(tmp_path / "exp.yaml"), "-j", "1", "-q"]) == 0
+    shutil.rmtree(tmp_path / "cache")
+    assert main(["report", str(tmp_path / "out" / "exp")]) == 0
+    assert not (tmp_path / "cache").exists()

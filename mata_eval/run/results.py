@@ -14,7 +14,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
 
 import numpy as np
 
@@ -255,9 +255,8 @@ def _sha256(path: str, size: int, mtime_ns: int) -> str:
 
 
 def groundtruth_sha256(seq: Sequence) -> str:
-    """sha256 of a sequence's annotations as a run reads them: every ground-truth box as float64
-    (frame 0 starts the tracker; the occlusion augmentation places its occluders from them all),
-    the ``annotated`` mask and the ``init`` box when it has them."""
+    """sha256 of a sequence's annotations as scoring reads them: every ground-truth box as
+    float64, the ``annotated`` mask and the ``init`` box when it has them."""
     digest = hashlib.sha256(np.ascontiguousarray(seq.groundtruth, dtype=np.float64).tobytes())
     if seq.annotated is not None:
         digest.update(b"annotated" + np.ascontiguousarray(seq.annotated, dtype=bool).tobytes())
@@ -266,12 +265,24 @@ def groundtruth_sha256(seq: Sequence) -> str:
     return digest.hexdigest()
 
 
-def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence]) -> list[str]:
-    """The sequences whose ground truth differs from ``recorded`` (sequence -> digest, as a
+def run_input_sha256(seq: Sequence, occluded: bool) -> str:
+    """sha256 of what a run reads of a sequence's annotations: the box its tracker starts from,
+    and with the occlusion augmentation (``occluded``), which places its occluders from every
+    box, all of them (:func:`groundtruth_sha256`). A box edited later in a run without occlusion
+    changes the scores, not the results."""
+    if occluded:
+        return groundtruth_sha256(seq)
+    b = seq.init_box
+    return hashlib.sha256(b"start" + np.array([b.x, b.y, b.w, b.h], np.float64).tobytes()).hexdigest()
+
+
+def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence],
+                        fingerprint: Callable[[Sequence], str] = groundtruth_sha256) -> list[str]:
+    """The sequences whose ``fingerprint`` differs from ``recorded`` (sequence -> digest, as a
     manifest or a scores.json keeps it); a sequence without a record (older mata-eval) is not
     compared."""
     recorded = recorded if isinstance(recorded, dict) else {}
-    return [s.name for s in sequences if s.name in recorded and recorded[s.name] != groundtruth_sha256(s)]
+    return [s.name for s in sequences if s.name in recorded and recorded[s.name] != fingerprint(s)]
 
 
 def package_versions() -> dict[str, str]:

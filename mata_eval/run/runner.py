@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import functools
 import json
 import os
 import warnings
@@ -135,28 +136,33 @@ def _change(old: dict, spec: RunSpec) -> str:
 
 def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: bool,
                        only: list[str] | None = None) -> dict[str, str]:
-    """Sequence -> sha256 of its ground truth (:func:`results.groundtruth_sha256`) for the
-    manifest: today's for a sequence this run computes (``force``: the finished ones too, of
-    ``only`` if given), the recorded one for a finished sequence it keeps. Refuses a kept
-    sequence whose ground truth changed since it was made (its tracker started from the old
-    frame-0 box), as a changed model file is refused; one made by an older mata-eval (no
+    """Sequence -> sha256 of what the run reads of its annotations
+    (:func:`results.run_input_sha256`: the start box, all boxes with occlusion) for the manifest:
+    today's for a sequence this run computes (``force``: the finished ones too, of ``only`` if
+    given), the recorded one for a finished sequence it keeps. Refuses a kept sequence whose
+    record differs now, as a changed model file is refused; one made by an older mata-eval (no
     record) is kept without one."""
     out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
+    occluded = spec.occlusion is not None
+    fingerprint = functools.partial(results.run_input_sha256, occluded=occluded)
     record, changed = {}, []
     for seq in load_sequences(spec):
         if not results.is_finished(out, seq.name) or (force and (not only or seq.name in only)):
-            record[seq.name] = results.groundtruth_sha256(seq)
+            record[seq.name] = fingerprint(seq)
         elif seq.name in before:
             record[seq.name] = before[seq.name]
-            changed += results.changed_groundtruth(before, [seq])
+            changed += results.changed_groundtruth(before, [seq], fingerprint)
     if changed:
-        names = " ".join(changed)
         raise ResultsConflict(
-            f"{out} holds results of {len(changed)} sequence(s) whose ground truth changed since they were "
-            f"made ({', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}): their tracker started from "
-            f"the old box; rerun with --force --sequences {names} to redo them, or change "
-            f"`output` in {exp.path}")
+            f"{out} holds results of {len(changed)} sequence(s) whose ground truth changed since they were made "
+            f"({', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}): {RUN_ON_OTHER_GT[occluded]}; rerun "
+            f"with --force --sequences {' '.join(changed)} to redo them, or change `output` in {exp.path}")
     return record
+
+
+#: what a result made on other ground truth differs by, without and with the occlusion augmentation
+RUN_ON_OTHER_GT = ("their tracker started from another box",
+                   "their tracker started from another box or the occluders were placed from other boxes")
 
 
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),

@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import json
 import shlex
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 
-from ..core.errors import UserError
-from ..core.sequence import Sequence
+from ..core.sequence import FrameReadError, Sequence
 from ..run import results
 from ..run.config import Experiment, RunSpec
 from . import metrics
@@ -359,7 +360,8 @@ def evaluate_results(
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
         "groundtruth": {s.name: results.groundtruth_sha256(s) for s in scored},   # what a report compares
         # sequences whose tracker results were made on other ground truth (the manifest's record)
-        "other_groundtruth": results.changed_groundtruth(manifest.get("groundtruth"), scored),
+        "other_groundtruth": results.changed_groundtruth(manifest.get("groundtruth"), scored, functools.partial(
+            results.run_input_sha256, occluded=(manifest.get("config") or {}).get("occlusion") is not None)),
     }
     return RunScores(
         name=name or manifest.get("run") or d.name,
@@ -438,7 +440,11 @@ class ScoresUnavailable(RuntimeError):
     """A run folder has no scores.json and cannot be evaluated from here."""
 
 
-def scores_for(run_dir: Path, log: Callable[[str], None] = print) -> RunScores:
+def _to_stderr(message: str) -> None:
+    print(message, file=sys.stderr)   # (not into a table written to stdout: report --format csv > file)
+
+
+def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunScores:
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
     experiment file can still be loaded and it has no scores.json, one that does not cover its
     finished and failed sequences (:func:`stale_reason`), or one scored on ground truth the
@@ -451,6 +457,7 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = print) -> RunScores:
         return load_scores(d)
     manifest = results.read_manifest(d)
     stale = None
+    changed: list[str] = []
     if (d / SCORES).is_file():
         scores = load_scores(d)
         stale = stale_reason(scores, d) if manifest is not None else None
@@ -458,17 +465,21 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = print) -> RunScores:
         if stale is None and not changed:
             return scores
         if changed:
-            log(f"{d}: scored again: the ground truth of {', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''} "
-                f"changed since its {SCORES} was written")
+            log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
+                f"{' ...' if len(changed) > 5 else ''} differ from the ones its {SCORES} was scored on")
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
     if manifest is None:
         raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); {hint}")
-    what = f"its {SCORES} is out of date ({stale})" if stale else f"no {SCORES}"
+    what = (f"its {SCORES} is out of date ({stale or 'the annotations of ' + ', '.join(changed[:5]) + ' differ'})"
+            if stale or changed else f"no {SCORES}")
     from ..run.runner import load_sequences
 
     with results.in_run_cwd(manifest):   # its relative dataset root, not this folder's namesake
         spec = _run_spec(d, manifest, f"{d}: {what}, and", hint)
-        return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
+        try:
+            return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
+        except FrameReadError as exc:   # the occlusion augmentation reads frame 0: frames not on this machine
+            raise ScoresUnavailable(f"{d}: {what}, and it cannot be scored here: {exc}") from None
 
 
 def _run_spec(d: Path, manifest: dict, what: str, hint: str) -> RunSpec:
@@ -493,8 +504,9 @@ def _run_spec(d: Path, manifest: dict, what: str, hint: str) -> RunSpec:
 def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> list[str]:
     """The sequences whose ground truth (its sha256, ``meta["groundtruth"]``) differs from their
     annotations now (read once per dataset and process). Empty when the scores have no record
-    (an older mata-eval) or the experiment or its dataset cannot be read (a copied folder): the
-    scores are trusted then."""
+    (an older mata-eval), the experiment or its dataset cannot be read (a copied folder), or the
+    dataset is generated (a plugin with ``check()``, the synthetic suite: reading it would build
+    it, and no one edits it by hand): the scores are trusted then."""
     from ..run.tasks import base_sequences
 
     if not scores.meta.get("groundtruth"):
@@ -502,8 +514,10 @@ def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> li
     try:
         with results.in_run_cwd(manifest):
             spec = _run_spec(Path(run_dir), manifest, "", "")
+            if hasattr(spec.dataset.cls, "check"):
+                return []
             return results.changed_groundtruth(scores.meta["groundtruth"], base_sequences(spec))
-    except (UserError, RuntimeError, OSError, ValueError, KeyError):   # ScoresUnavailable is a RuntimeError
+    except Exception:   # whatever a dataset plugin raises: this check only adds to what scores.json says
         return []
 
 
