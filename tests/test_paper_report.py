@@ -405,7 +405,8 @@ def test_mata_minus_baseline_takes_the_baseline_of_its_own_output_and_tracker_ve
     (row,) = mata_deltas([r.scores for r in load_runs([zoh, mata])]).rows
     assert row[2:4] == ["2-mata - 1-zoh", "+20.0"]
     alone = make_run(tmp_path / "z", "0-alone", config(), {"s": 6})
-    (row,) = mata_deltas([r.scores for r in load_runs([zoh, mata, alone])]).rows
+    ego_only = make_run(tmp_path / "z", "1-ego", config(egomotion={"name": "grid_lk"}), {"s": 3})
+    (row,) = mata_deltas([r.scores for r in load_runs([zoh, ego_only, mata, alone])]).rows
     assert row[2:4] == ["2-mata - 0-alone", "+10.0"]
 
 

@@ -492,6 +492,7 @@ def test_a_search_centre_given_as_a_numpy_array_is_taken():
     e = Estimate(Box(0.0, 0.0, 4.0, 4.0), search=np.array([np.float32(3.5), 7.0]))
     assert e.search == (3.5, 7.0) and type(e.search[0]) is float
     assert e.within(10.0, 10.0).search == (3.5, 7.0)   # (within compared an array: ambiguous truth value)
+    assert Estimate(Box(0.0, 0.0, 4.0, 4.0), search="12").search == "12"   # not numbers: left to be refused
     run = run_sequence(make_sequence(6), FrameTracker(), None,
                        OddEstimator(lambda b: Estimate(b, search=np.array([b.cx, b.cy]))), LTP(), np.random.default_rng(0))
     assert len(run.boxes) == 6

@@ -177,7 +177,7 @@ class Estimate:
     search: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        if self.search is not None and type(self.search) is not tuple:   # e.g. a numpy array (cx, cy)
+        if isinstance(self.search, (np.ndarray, list)):   # e.g. a numpy array (cx, cy)
             try:
                 object.__setattr__(self, "search", tuple(float(v) for v in self.search))
             except (TypeError, ValueError):

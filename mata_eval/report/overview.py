@@ -191,9 +191,9 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
         if not found:
             continue
         # two outputs of one experiment (report jetson/* desktop/*): the baseline beside the run;
-        # of several, the tracker alone before a baseline estimator (zoh)
+        # of several, the tracker alone before one with a block B or a baseline estimator (zoh)
         base, _ = min(found, key=lambda b: (Path(b[0].path).parent != Path(r.path).parent,
-                                            b[1].get("estimator") is not None))
+                                            b[1].get("estimator") is not None or b[1].get("egomotion") is not None))
         mine, theirs = r.summary.overall, base.summary.overall
         if set(r.sequences) != set(base.sequences):
             # a sequence that failed (or is missing) in one run only: both means over the

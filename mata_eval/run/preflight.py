@@ -93,9 +93,9 @@ def check_block(block: PluginBlock) -> BaseException | None:
     """The plugin can be built here (model files found) and its optional ``check()`` passes
     (e.g. an ONNX tracker opens its model with the chosen backend)."""
     try:
-        obj = block.create()
-        if hasattr(obj, "check"):
-            obj.check()
+        with block.instance() as obj:   # closed afterwards, as in a run
+            if hasattr(obj, "check"):
+                obj.check()
     except Exception as exc:  # any failure is the problem to report
         return exc
     return None
