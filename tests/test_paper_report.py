@@ -449,31 +449,21 @@ def test_ablation_names_a_block_b_of_its_own_and_a_plugin_label(tmp_path, monkey
     assert one[2][4] == "MATA, the paper's block C (preset paper); block B: ORB+RANSAC"   # not mata-eval's
 
 
-def test_an_estimator_ablation_that_is_not_a_classmethod_is_named(tmp_path, monkeypatch):
-    """QA pass: ablation() written as an instance method gave a raw TypeError from the report."""
-    (tmp_path / "qa_abl_instance.py").write_text(
+@pytest.mark.parametrize("module, ablation, words", [
+    # QA pass: ablation() written as an instance method gave a raw TypeError from the report
+    ("qa_abl_instance", "    def ablation(self, params, egomotion): return (egomotion, True, 'hold')\n",
+     r"is not a classmethod; expected @classmethod .* \(ego-motion used"),
+    # QA pass: a classmethod ablation() raising KeyError printed a 31-line traceback and no table
+    ("qa_abl_raise", "    @classmethod\n    def ablation(cls, params, egomotion): return params['use_motion']\n",
+     r"raised KeyError: 'use_motion'$"),
+])
+def test_an_estimator_ablation_that_breaks_its_contract_is_named(tmp_path, monkeypatch, module, ablation, words):
+    (tmp_path / f"{module}.py").write_text(
         "from dataclasses import dataclass\n"
         "class Hold:\n    name = 'hold'\n"
         "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
-        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n"
-        "    def ablation(self, params, egomotion): return (egomotion, True, 'hold')\n")
+        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n" + ablation)
     monkeypatch.syspath_prepend(str(tmp_path))
-    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": "qa_abl_instance:Hold"}), {"s": 5})
-    with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_instance:Hold': ablation\(params, egomotion\) "
-                                             r"is not a classmethod; expected @classmethod .* \(ego-motion used"):
-        build_table("ablation", load_runs([d]))
-
-
-def test_an_estimator_ablation_that_raises_is_named(tmp_path, monkeypatch):
-    """QA pass: a classmethod ablation() raising KeyError printed a 31-line traceback and no table."""
-    (tmp_path / "qa_abl_raise.py").write_text(
-        "from dataclasses import dataclass\n"
-        "class Hold:\n    name = 'hold'\n"
-        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
-        "    def initialize(self, box, t): pass\n    def step(self, t, motions=(), detections=()): pass\n"
-        "    @classmethod\n    def ablation(cls, params, egomotion): return params['use_motion']\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": "qa_abl_raise:Hold"}), {"s": 5})
-    with pytest.raises(PlacementError, match=r"^estimator 'qa_abl_raise:Hold': ablation\(params, egomotion\) raised "
-                                             r"KeyError: 'use_motion'$"):
+    d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": f"{module}:Hold"}), {"s": 5})
+    with pytest.raises(PlacementError, match=rf"^estimator '{module}:Hold': ablation\(params, egomotion\) {words}"):
         build_table("ablation", load_runs([d]))
