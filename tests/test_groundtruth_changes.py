@@ -186,3 +186,18 @@ def test_a_report_does_not_build_a_generated_dataset_to_compare_it(tmp_path, mon
     shutil.rmtree(tmp_path / "cache")
     assert main(["report", str(tmp_path / "out" / "exp")]) == 0
     assert not (tmp_path / "cache").exists()
+
+
+def test_the_record_outlives_an_absent_sequence_and_judges_only_the_selected_ones(workdir, capsys):
+    """QA pass 13: a sequence moved away for one rerun lost its record, so an edit made after
+    it came back went unnoticed; and an edit to a sequence --sequences left out refused the run."""
+    run = workdir / "out" / "exp"
+    (workdir / "data" / "a").rename(workdir / "a.away")
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    (workdir / "a.away").rename(workdir / "data" / "a")
+    _move(workdir)
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--sequences", "b"]) == 0   # a: not asked for
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
+    assert "whose ground truth changed since they were made (a)" in capsys.readouterr().err
+    np.testing.assert_allclose(read_boxes(run / "a.txt"), [[2, 3, 4, 5]] * N)

@@ -139,18 +139,19 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
     """Sequence -> sha256 of what the run reads of its annotations
     (:func:`results.run_input_sha256`: the start box, all boxes with occlusion) for the manifest:
     today's for a sequence this run computes (``force``: the finished ones too, of ``only`` if
-    given), the recorded one for a finished sequence it keeps. Refuses a kept sequence whose
-    record differs now, as a changed model file is refused; one made by an older mata-eval (no
-    record) is kept without one."""
+    given), the recorded one for a sequence it keeps (also one absent from the dataset today).
+    Refuses a kept sequence of ``only`` whose record differs now, as a changed model file is
+    refused (one ``--sequences`` leaves out is not this run's to judge); one made by an older
+    mata-eval (no record) is kept without one."""
     out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
     occluded = spec.occlusion is not None
     fingerprint = functools.partial(results.run_input_sha256, occluded=occluded)
-    record, changed = {}, []
+    record, changed = dict(before), []
     for seq in load_sequences(spec):
-        if not results.is_finished(out, seq.name) or (force and (not only or seq.name in only)):
+        selected = not only or seq.name in only
+        if not results.is_finished(out, seq.name) or (force and selected):
             record[seq.name] = fingerprint(seq)
-        elif seq.name in before:
-            record[seq.name] = before[seq.name]
+        elif selected:
             changed += results.changed_groundtruth(before, [seq], fingerprint)
     if changed:
         raise ResultsConflict(
