@@ -201,3 +201,17 @@ def test_the_record_outlives_an_absent_sequence_and_judges_only_the_selected_one
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
     assert "whose ground truth changed since they were made (a)" in capsys.readouterr().err
     np.testing.assert_allclose(read_boxes(run / "a.txt"), [[2, 3, 4, 5]] * N)
+
+
+def test_a_sequence_unscorable_on_a_broken_annotation_file_is_scored_once_the_file_is_fixed(workdir, capsys):
+    """QA pass 13: report kept saying "cannot score" after the annotation file was restored (the
+    unscorable sequence's ground truth was not recorded, so never compared again)."""
+    run = workdir / "out" / "exp"
+    gt = workdir / "data" / "a" / "groundtruth_rect.txt"
+    gt.write_text(BOX * (N + 1))   # one line too many: a's results no longer fit
+    assert main(["report", str(run)]) == 0
+    assert "cannot score exp/a" in capsys.readouterr().out
+    gt.write_text(BOX * N)         # fixed
+    assert main(["report", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "cannot score" not in out and _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}

@@ -358,7 +358,10 @@ def evaluate_results(
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
         "unscorable": unscorable,   # sequence -> why its results cannot be scored (counted as failed)
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
-        "groundtruth": {s.name: results.groundtruth_sha256(s) for s in scored},   # what a report compares
+        # what a report compares: the ground truth of each sequence scored or found unscorable (an
+        # annotation file fixed later makes the unscorable one scorable)
+        "groundtruth": {s.name: results.groundtruth_sha256(s) for s in sequences
+                        if s.name in per_seq or s.name in unscorable},
         # sequences whose tracker results were made on other ground truth (the manifest's record)
         "other_groundtruth": results.changed_groundtruth(manifest.get("groundtruth"), scored, functools.partial(
             results.run_input_sha256, occluded=(manifest.get("config") or {}).get("occlusion") is not None)),
