@@ -500,7 +500,8 @@ def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp
     capsys.readouterr()
     assert cli.main(["run", str(exp.path), "-j", "1", "-q"]) == 1
     out = capsys.readouterr().out
-    assert (f"cannot score exp/good: {run / 'good.frames.csv'}: 5 rows, sequence 'good' has 6 frames; "
+    assert (f"cannot score exp/good: {run / 'good.frames.csv'}: 5 rows, sequence 'good' has 6 frames (its ground "
+            f"truth, or the frames, changed since the run); "
             f"to run it again: mata-eval run {exp.path} -o {run.parent} --runs exp --force --sequences good") in out
     # a copy of the folder: the hint recomputes the sequence in the copy (QA pass: it left out -o)
     copy = tmp_path / "copy" / "exp"
@@ -511,6 +512,12 @@ def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp
     assert cli.main(shlex.split(hint.group(1)) + ["-j", "1", "-q"]) == 0
     assert len((copy / "good.frames.csv").read_text().splitlines()) == 7   # header + 6 frames
     assert len((run / "good.frames.csv").read_text().splitlines()) == 6    # the original untouched
+    # a copy under another name: the run writes its own name's folder, so the hint says to rename it
+    other = tmp_path / "copy" / "mine"
+    shutil.copytree(run, other)
+    (other / "scores.json").unlink()
+    assert cli.main(["report", str(other)]) == 0
+    assert "; to run it again: rename this folder exp (the run writes there), then mata-eval run" in capsys.readouterr().out
     scores = json.loads((run / "scores.json").read_text())
     assert set(scores["sequences"]) == {"nan"} and set(scores["failures"]) == {"good", "broken"}
     (run / "nan.txt").write_text("1,2,3\n")

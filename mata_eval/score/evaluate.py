@@ -290,7 +290,8 @@ def _score_one(res: SequenceResult, seq: Sequence, profile: str) -> SequenceScor
         raise ValueError(f"{res.source}: empty prediction file; sequence {seq.name!r} has {len(seq)} frames")
     if res.scored is not None and len(res.scored) != len(seq):
         raise ValueError(f"{Path(res.source).with_suffix('.frames.csv')}: {len(res.scored)} rows, "
-                         f"sequence {seq.name!r} has {len(seq)} frames")
+                         f"sequence {seq.name!r} has {len(seq)} frames (its ground truth, or the frames, "
+                         f"changed since the run)")
     try:
         return metrics.score_sequence(res.boxes, seq.groundtruth, profile=profile, scored=res.scored,
                                       annotated=seq.annotated)
@@ -346,9 +347,11 @@ def evaluate_results(
     per_seq, attrs, summary, missing, freqs = score_results(found, sequences, profile, groups, unscorable)
     manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
     if manifest.get("experiment_file"):   # what recomputes the sequence, in this folder (-o: copied or moved)
+        run = manifest.get("run")
         again = (f"mata-eval run {shlex.quote(manifest['experiment_file'])} -o {shlex.quote(str(d.resolve().parent))} "
-                 f"--runs {manifest.get('run')} --force --sequences")
-        unscorable = {k: f"{why}; to run it again: {again} {k}" for k, why in unscorable.items()}
+                 f"--runs {run} --force --sequences")
+        rename = "" if d.resolve().name == run else f"rename this folder {run} (the run writes there), then "
+        unscorable = {k: f"{why}; to run it again: {rename}{again} {k}" for k, why in unscorable.items()}
     dataset = (manifest.get("config") or {}).get("dataset")
     scored = [s for s in sequences if s.name in per_seq]
     meta = {
