@@ -221,6 +221,10 @@ def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):
     assert "NT2F" in text and "pysot" in text and "Occlusion" in text
     assert "FM (1) SR" in text and "POC (1) NT2F" in text   # car1's and car2's attributes
     assert evaluate.load_scores(out_dir).profile == "pysot-toolkit"
+    # report of the foreign folder says how to keep its scores, and the hint works (QA pass: it looped)
+    assert cli.main(["report", str(d)]) == 2
+    assert "(with --output DIR, then `mata-eval report DIR` reports it again)" in capsys.readouterr().err
+    assert cli.main(["report", str(out_dir)]) == 0 and "pysot" in capsys.readouterr().out
 
 
 def test_eval_cli_reports_unknown_dataset(tmp_path, capsys):

@@ -474,8 +474,10 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
                 f"{' ...' if len(changed) > 5 else ''} differ from the ones its {SCORES} was scored on")
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
-    if manifest is None:
-        raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); {hint}")
+    if manifest is None:   # another toolkit's results: eval keeps no scores.json there unless told where
+        raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); run `mata-eval "
+                                f"eval {d} --dataset NAME --root PATH` to score it (with --output DIR, then "
+                                f"`mata-eval report DIR` reports it again)")
     what = (f"its {SCORES} is out of date ({stale or 'the annotations of ' + ', '.join(changed[:5]) + ' differ'})"
             if stale or changed else f"no {SCORES}")
     from ..run.runner import load_sequences
