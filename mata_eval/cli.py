@@ -157,7 +157,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
                   for k in ("dataset", "tracker", "egomotion", "estimator", "protocol")]
         print(f"  {r.name}: {' '.join(blocks)} occlusion={'on' if r.occlusion else 'off'}"
               + ("  (optional)" if r.optional else ""))
-    checked = _preflight(exp, None, args.debug)
+    checked = _preflight(exp, args.runs, args.debug, args.sequences)
     if checked is None:
         return 2
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
@@ -915,7 +915,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("validate", help="check an experiment file and what its runs need (data, models, "
                                         "backends), list its runs, run nothing")
-    p.add_argument("experiment")
+    p.add_argument("experiment", help="experiment file (a path or a shipped name)")
+    p.add_argument("--runs", nargs="+", help="check only these runs")
+    p.add_argument("--sequences", nargs="+", help="check only these sequences (as run --sequences would run)")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("synth", help="generate synthetic UAV sequences (UAV123 layout, true homographies)",

@@ -121,6 +121,7 @@ def test_one_sequence_that_cannot_run_is_named_and_sequences_runs_the_others(tmp
     for name in ("short", "short2"):
         assert f"{root / name / 'groundtruth_rect.txt'}: 11 ground-truth lines but 12 frames" in err
     assert main(["run", str(exp), "-j", "1", "-q"]) == 2
+    assert main(["validate", str(exp), "--sequences", "square"]) == 0   # as run --sequences square will run
     assert main(["run", str(exp), "-j", "1", "-q", "--sequences", "square", "--no-report"]) == 0
     assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["square.txt"]
     # with the occlusion augmentation too, and a sequence without frames (review: the augmentation
