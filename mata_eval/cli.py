@@ -336,7 +336,8 @@ def _print_incomplete(runs: Sequence) -> None:
         other = scores.meta.get("other_groundtruth") or []
         if other:
             print(f"{len(other)} sequence(s){where} were run on other ground truth than they are scored on here (their "
-                  f"tracker started from another box, or occluders were placed from other boxes): {', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
+                  f"tracker started from another box, or occluders were placed from other boxes): "
+                  f"{', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
                   + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
         bad = scores.meta.get("bad_frames") or {}
         if bad:

@@ -134,6 +134,11 @@ def _change(old: dict, spec: RunSpec) -> str:
     return "" if change is None else f"{change}; "
 
 
+#: what a result made on other ground truth differs by, without and with the occlusion augmentation
+RUN_ON_OTHER_GT = ("their tracker started from another box",
+                   "their tracker started from another box or the occluders were placed from other boxes")
+
+
 def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: bool,
                        only: list[str] | None = None) -> dict[str, str]:
     """Sequence -> sha256 of what the run reads of its annotations
@@ -159,11 +164,6 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
             f"({', '.join(changed[:5])}{' ...' if len(changed) > 5 else ''}): {RUN_ON_OTHER_GT[occluded]}; rerun "
             f"with --force --sequences {' '.join(changed)} to redo them, or change `output` in {exp.path}")
     return record
-
-
-#: what a result made on other ground truth differs by, without and with the occlusion augmentation
-RUN_ON_OTHER_GT = ("their tracker started from another box",
-                   "their tracker started from another box or the occluders were placed from other boxes")
 
 
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
