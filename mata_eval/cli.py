@@ -640,6 +640,9 @@ def cmd_profile(args: argparse.Namespace) -> int:
             print(f"error: {exp.path}: no run {args.run!r} (runs: {', '.join(r.name for r in exp.runs)})", file=sys.stderr)
             return 2
         spec = matches[0]
+    # what validate and run check first (QA pass: a wrong checkpoint or backend was a traceback here)
+    if _preflight(exp, [spec.name], args.debug, [args.sequence] if args.sequence else None) is None:
+        return 2
     if args.threads:
         _set_threads(args.threads)
     try:

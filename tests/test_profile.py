@@ -299,3 +299,25 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--time-scale", "camera=2"])
     assert args.func(args) == 2
     assert "--time-scale 'camera=2': expected FACTOR or BLOCK=FACTOR" in capsys.readouterr().err
+
+
+def test_profile_checks_what_validate_and_run_check_first(tmp_path, capsys, monkeypatch):
+    """QA pass 13: profile never ran the preflight, so a wrong checkpoint, a missing backend or
+    device ended in a traceback where validate and run give one line."""
+    from mata_eval.cli import main
+
+    (tmp_path / "qa_prof_broken.py").write_text(
+        "from dataclasses import dataclass\n"
+        "class Broken:\n"
+        "    @dataclass(frozen=True)\n    class Params:\n        pass\n"
+        "    def __init__(self, params):\n        raise RuntimeError('TensorRT is not installed')\n"
+        "    def initialize(self, image, box): pass\n    def track(self, image, prior=None): pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    path = tmp_path / "exp.yaml"
+    path.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 8, "
+                    "width: 160, height: 120}\ntracker: {name: 'qa_prof_broken:Broken'}\n")
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    assert main(["profile", str(path), "--out", str(tmp_path / "p.json"), "--frames", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "error: tracker qa_prof_broken:Broken" in err and "TensorRT is not installed" in err
+    assert not (tmp_path / "p.json").exists()
