@@ -109,6 +109,13 @@ def test_parity_failure_is_loud_and_leaves_no_file(tmp_path):
         E._export_checked("full", Branchy(), pos, [{"x": -np.ones((1, 4), np.float32)}], tmp_path / "b.onnx",
                           ["x"], ["y"])
     assert not (tmp_path / "b.onnx").exists()
+    # over an earlier export: that one stays whole (QA pass 13: the failed re-export deleted its graph)
+    (tmp_path / "b.onnx").write_bytes(b"the earlier, checked graph")
+    with pytest.raises(E.ParityError, match="differs from torch"):
+        E._export_checked("full", Branchy(), pos, [{"x": -np.ones((1, 4), np.float32)}], tmp_path / "b.onnx",
+                          ["x"], ["y"])
+    assert (tmp_path / "b.onnx").read_bytes() == b"the earlier, checked graph"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.onnx"]
 
 
 def test_nanotrack_random_weights_through_the_cli(tmp_path, capsys):
@@ -123,6 +130,8 @@ def test_nanotrack_random_weights_through_the_cli(tmp_path, capsys):
     assert bb.run(None, {"input": np.zeros((1, 3, 255, 255), np.float32)})[0].shape == (1, 48, 16, 16)
     args = parser.parse_args(["export", "nanotrack", "--out", str(tmp_path)])
     assert args.func(args) == 2 and "--random-weights" in capsys.readouterr().err
+    args = parser.parse_args(["export", "nanotrack", "--random-weights", "--checkpoint", "x.pth", "--out", str(tmp_path)])
+    assert args.func(args) == 2 and "not both" in capsys.readouterr().err   # one of them was silently ignored
 
 
 def test_nanotrack_from_pth_matches_the_published_pair_and_tracks(shared_data, tmp_path):

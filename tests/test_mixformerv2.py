@@ -508,6 +508,9 @@ def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
     ("mixformerv2", "search_factor", 0, "search_factor: expected a positive finite number"),
     ("mixformerv2", "template_factor", ".inf", "template_factor: expected a positive finite number"),
     ("ostrack", "search_factor", ".inf", "search_factor: expected a positive finite number"),
+    # QA pass 13: a bare "'cuda:1'" (a KeyError) at the first frame; a checkpoint silently ignored
+    ("ostrack", "backend: onnxruntime\n  onnx: x\n  device", "cuda:1", "device: expected one of cpu, cuda, tensorrt"),
+    ("mixformerv2", "random_weights: true\n  checkpoint", "ck.pth.tar", "random_weights: true ignores checkpoint"),
     ("mixformerv2", "update_interval", 0, "update_interval: expected >= 1"),
     ("ostrack", "ce_keep_ratio", 1.5, "ce_keep_ratio: expected a number in (0, 1]"),
     ("vittrack", "window_alpha", -0.1, "window_alpha: expected a number in [0, 1]"),

@@ -21,6 +21,7 @@ Heavy packages (torch, onnx, onnxruntime) are imported inside the functions.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -151,25 +152,38 @@ def _export_checked(role: str, module: Any, example: dict[str, np.ndarray], pari
     import torch
 
     args = [torch.from_numpy(example[n]) for n in input_names]
-    export_module(module, args, path, input_names, output_names, dynamic_axes, opset)
+    pending = path.with_name(PENDING + path.name)   # the export in the folder stays until this one is checked
+    export_module(module, args, pending, input_names, output_names, dynamic_axes, opset)
     try:
-        err = check_parity(module, path, [example] + list(parity_feeds), input_names, output_names, atol, rtol)
+        err = check_parity(module, pending, [example] + list(parity_feeds), input_names, output_names, atol, rtol)
     except ParityError:
-        path.unlink(missing_ok=True)
+        pending.unlink(missing_ok=True)
         raise
-    return ExportedGraph(role, path, tuple(input_names), tuple(output_names), err)
+    return ExportedGraph(role, pending, tuple(input_names), tuple(output_names), err)
 
 
-def _write_manifest(result: ExportResult, extra: dict) -> Path:
+#: prefix of a graph written and being checked, renamed to its name with the manifest (:func:`_write_manifest`)
+PENDING = ".pending-"
+
+
+def _write_manifest(result: ExportResult, extra: dict) -> ExportResult:
+    """Put the checked graphs of ``result`` in place of the folder's old ones, then write its
+    ``export.json`` (a failed export leaves the old export whole); returns ``result`` with the
+    graphs' final paths."""
     from ..run import results
 
+    graphs = []
+    for g in result.graphs:
+        final = g.path.with_name(g.path.name.removeprefix(PENDING))
+        os.replace(g.path, final)
+        graphs.append(dataclasses.replace(g, path=final))
+    result = dataclasses.replace(result, graphs=tuple(graphs))
     doc = {"format": "mata-eval export", "version": 1, "model": result.model, "config": result.config,
            "graphs": {g.role: {"file": g.path.name, "inputs": list(g.inputs), "outputs": list(g.outputs),
                                "max_abs_error_vs_torch": g.max_abs_error} for g in result.graphs},
            "versions": results.package_versions(), **extra}
-    path = result.out_dir / MANIFEST
-    results.atomic_write_text(path, json.dumps(doc, indent=1, default=str))
-    return path
+    results.atomic_write_text(result.out_dir / MANIFEST, json.dumps(doc, indent=1, default=str))
+    return result
 
 
 def read_manifest(folder: str | Path, model: str) -> dict:
@@ -216,6 +230,8 @@ def export_nanotrack(out_dir: str | Path, checkpoint: str | Path | None = None, 
     from mata_eval_plugins.trackers import nanotrack_torch as nt
 
     if model is None:
+        if checkpoint is not None and random_weights:   # (one of them was silently ignored)
+            raise ValueError("nanotrack export: give --checkpoint nanotrackv2.pth or --random-weights, not both")
         if checkpoint is not None:
             model = nt.load_nanotrack_v2(checkpoint, trust_pickle=trust_pickle)
         elif random_weights:
@@ -251,10 +267,9 @@ def export_nanotrack(out_dir: str | Path, checkpoint: str | Path | None = None, 
                            out / NANOTRACK_FILES["head"], ["input1", "input2"], ["output1", "output2"], None,
                            opset, atol, rtol)
     result = ExportResult("nanotrack", out, (backbone, head), {"exemplar_size": 127, "instance_size": 255})
-    _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                             "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
-                             "random_weights_seed": None if checkpoint else seed})
-    return result
+    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                    "random_weights_seed": None if checkpoint else seed})
 
 
 # --- MixFormerV2 ---------------------------------------------------------------------------------
@@ -316,6 +331,8 @@ def _load_vit_network(kind: str, variant: str, checkpoint, random_weights: bool,
         from mata_eval_plugins.trackers.ostrack import FILE_NAME, SOURCE
 
         cfg, build, official = vit.OSTRACK_256, vit.OSTrackNet, vit.OfficialCheckpoint("OSTrack-256", FILE_NAME, SOURCE)
+    if checkpoint is not None and random_weights:   # (one of them was silently ignored)
+        raise ValueError(f"{kind} export: give --checkpoint PATH or --random-weights, not both")
     if checkpoint is not None:
         net = build(cfg)
         vit.load_checkpoint(net, checkpoint, official, trust_pickle=trust_pickle)
@@ -370,14 +387,14 @@ def export_mixformerv2(out_dir: str | Path, checkpoint: str | Path | None = None
         graphs.append(_export_checked("search", search_m, s_example, [s_other], out / files["search"],
                                       ["search"] + kv_names, MIXFORMER_OUTPUTS, None, opset, atol, rtol))
         # The chain template graph -> search graph, both in ONNX Runtime, equals the torch full forward.
-        _check_chain(net, out / files["template"], out / files["search"], other, kv_names, atol, rtol)
+        _check_chain(net, graphs[-2].path, graphs[-1].path, other, kv_names, atol, rtol)
     if not graphs:
         raise ValueError(f"mixformerv2 export: forms must include 'full' and/or 'two_graph', got {list(forms)}")
     config = {k: getattr(cfg, k) for k in ("template_size", "search_size", "depth", "feat_sz", "embed_dim", "num_heads")}
     result = ExportResult("mixformerv2", out, tuple(graphs), {**config, "variant": variant})
-    _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                             "random_weights_seed": None if checkpoint else seed})
-    return result
+    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                    "random_weights_seed": None if checkpoint else seed})
 
 
 def _check_chain(net: Any, template_path: Path, search_path: Path, feed: dict, kv_names: list[str],
@@ -444,6 +461,6 @@ def export_ostrack(out_dir: str | Path, checkpoint: str | Path | None = None, *,
     config = {"template_size": cfg.template_size, "search_size": cfg.search_size, "feat_sz": cfg.feat_sz,
               "ce_keep_ratio": list(cfg.ce_keep_ratio), "ce_loc": list(cfg.ce_loc)}
     result = ExportResult("ostrack", out, (graph,), config)
-    _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                             "random_weights_seed": None if checkpoint else seed})
-    return result
+    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                    "random_weights_seed": None if checkpoint else seed})

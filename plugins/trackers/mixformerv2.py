@@ -35,6 +35,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
+from .backends import check_weights_and_device
 from .crop import check_crop_factors, clip_box, map_box_back, sample_target, search_region, usable_prior
 from .model_files import exported_graphs
 from .window_score import check_window_alpha, pmf_window_score_min
@@ -152,6 +153,7 @@ class MixFormerV2:
             if self.variant not in VARIANTS:
                 raise ValueError(f"mixformerv2: variant: expected one of {', '.join(VARIANTS)}, got {self.variant!r}")
             check_crop_factors("mixformerv2", self)
+            check_weights_and_device("mixformerv2", self)
             check_window_alpha("mixformerv2", self.window_alpha, "the PMF's bins")
             if not math.isfinite(self.tau_template):
                 raise ValueError(f"mixformerv2: tau_template: expected a finite number, got {self.tau_template!r}")

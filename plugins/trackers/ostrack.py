@@ -24,6 +24,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.types import Box, TrackerOutput
 
+from .backends import check_weights_and_device
 from .crop import check_crop_factors, clip_box, map_box_back, sample_target, search_region, usable_prior
 from .mixformerv2 import _check_image, checkpoint_path
 from .model_files import exported_graphs
@@ -75,6 +76,7 @@ class OSTrack:
         def __post_init__(self) -> None:
             """Ranges, checked when the experiment is loaded (not in a sequence's first frame)."""
             check_crop_factors("ostrack", self)
+            check_weights_and_device("ostrack", self)
             if self.ce_keep_ratio is not None and not 0.0 < self.ce_keep_ratio <= 1.0:
                 raise ValueError(f"ostrack: ce_keep_ratio: expected a number in (0, 1] (1 disables candidate "
                                  f"elimination) or null, got {self.ce_keep_ratio!r}")
