@@ -97,7 +97,18 @@ def test_backend_setup_errors_name_what_is_missing(tmp_path):
                                          r"but this export has full; set template_cache: false or export them "
                                          r"\(mata-eval export mixformerv2 --form two-graph or both\)"):
         MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full")))
-    MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full"), template_cache=False))
+    full = MixFormerV2(MixFormerV2.Params(backend="onnxruntime", onnx=str(tmp_path / "full"), template_cache=False))
+    full.check()
+    # a graph export.json lists, deleted or cut short: named by the preflight (QA pass 13: it passed)
+    from mata_eval_plugins.trackers.backends import BackendUnavailable
+
+    graph = next((tmp_path / "full").glob("*.onnx"))
+    graph.write_bytes(graph.read_bytes()[:100])
+    with pytest.raises(BackendUnavailable, match=rf"{graph.name}: not an ONNX model ONNX Runtime can read"):
+        full.check()
+    graph.unlink()
+    with pytest.raises(BackendUnavailable, match=rf"{graph.name}: the full graph export.json lists is missing"):
+        full.check()
 
 
 def test_tensorrt_backend_is_skipped_or_explains(tmp_path):

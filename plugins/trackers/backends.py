@@ -108,6 +108,22 @@ def check_inputs(path: str | Path, expected: tuple[str, ...], model: str,
                                      f"{', '.join(map(str, outputs))}: it is not {model} (another version?)")
 
 
+def check_exported_graphs(folder: str | Path, model: str, roles: tuple[str, ...]) -> None:
+    """Preflight of a ``mata-eval export`` folder: each graph of ``roles`` that its export.json
+    lists is there and ONNX Runtime reads it, with the inputs export.json gives (a graph deleted
+    or cut short passed, and every sequence failed at its first frame)."""
+    from mata_eval.deploy.export import read_manifest
+
+    root = Path(folder).expanduser()
+    graphs = read_manifest(root, model).get("graphs", {})
+    for role in roles:
+        path = root / graphs[role]["file"]
+        if not path.is_file():
+            raise BackendUnavailable(f"{path}: the {role} graph export.json lists is missing; export again "
+                                     f"(mata-eval export {model} --out {folder})")
+        check_inputs(path, tuple(graphs[role]["inputs"]), f"the {role} graph of a {model} export")
+
+
 def check_backend(backend: Backend, device: Device = "cpu") -> None:
     """Raise :class:`BackendUnavailable` (one line: what is missing, what to install) when
     ``backend`` cannot run on ``device`` here; cheap: no model is opened (preflight)."""

@@ -191,11 +191,14 @@ class MixFormerV2:
     def check(self) -> None:
         """Preflight: the backend and device can run here and the checkpoint's keys and shapes
         are the variant's (not torch's error, or the loader's, on the first frame)."""
-        from .backends import check_device
+        from .backends import check_device, check_exported_graphs
 
-        check_device(self.params.backend, self.params.device)
+        p = self.params
+        check_device(p.backend, p.device)
         if self._path is not None:
             self._checkpoint()
+        if p.backend != "torch" and self._net is None:
+            check_exported_graphs(p.onnx, "mixformerv2", ("template", "search") if p.template_cache else ("full",))
 
     def _checkpoint(self, net=None) -> dict:
         """The checkpoint's state_dict, checked key by key and shape by shape against ``net`` (by

@@ -109,9 +109,11 @@ class OSTrack:
     def check(self) -> None:
         """Preflight: the backend and device can run here and the checkpoint's keys and shapes
         are OSTrack-256's (not torch's error, or the loader's, on the first frame)."""
-        from .backends import check_device
+        from .backends import check_device, check_exported_graphs
 
         check_device(self.params.backend, self.params.device)
+        if self.params.backend != "torch" and self._net is None:
+            check_exported_graphs(self.params.onnx, "ostrack", ("full",))
         if self._path is not None:
             import torch
 
