@@ -697,7 +697,7 @@ def _set_threads(n: int) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     from .deploy.export import MANIFEST, ParityError, export_mixformerv2, export_nanotrack, export_ostrack
 
-    if args.checkpoint is None and not args.random_weights:
+    if args.checkpoint is None and not args.random_weights and args.model == "nanotrack":
         print(f"error: mata-eval export {args.model}: give --checkpoint PATH (the official weights) or "
               "--random-weights (pipeline tests only)", file=sys.stderr)
         return 2
@@ -714,8 +714,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     except ParityError as exc:
         print(f"error: parity check failed: {exc}", file=sys.stderr)
         return 1
-    except (FileNotFoundError, ValueError, RuntimeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:   # (the loader speaks of the tracker's parameter)
+        print(f"error: {str(exc).replace('set the tracker parameter trust_pickle: true', 'give --trust-pickle')}",
+              file=sys.stderr)
         return 2
     for g in result.graphs:
         print(f"{g.role:9s} {g.path}  inputs {', '.join(g.inputs[:3])}{', ...' if len(g.inputs) > 3 else ''}"
@@ -873,7 +874,9 @@ def _add_export(subparsers) -> None:
                     "ONNX Runtime's outputs are compared with torch's on random crops; the export fails above "
                     "the tolerance. Writes export.json beside the graphs.")
     p.add_argument("model", choices=("nanotrack", "mixformerv2", "ostrack"))
-    p.add_argument("--checkpoint", help="weights: nanotrackv2.pth, mixformerv2_small.pth.tar, OSTrack_ep0300.pth.tar")
+    p.add_argument("--checkpoint", help="weights: nanotrackv2.pth, mixformerv2_small.pth.tar, OSTrack_ep0300.pth.tar "
+                                        "(MixFormerV2 and OSTrack: or the folder holding it; default: the tracker's "
+                                        "environment variable, $MATA_MIXFORMERV2_S / _B, $MATA_OSTRACK)")
     p.add_argument("--random-weights", action="store_true", help="seeded random weights (pipeline tests and timing only)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random weights and of the parity inputs")
     p.add_argument("--trust-pickle", action="store_true",

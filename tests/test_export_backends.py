@@ -187,3 +187,27 @@ def test_a_run_on_another_models_export_fails_its_sequences_not_the_experiment(t
     assert {o.run: o.status for o in outcomes} == {"kcf": "done", "os": "failed"}
     assert "expected a mata-eval export of 'ostrack', got model 'mixformerv2'" in next(o.reason for o in outcomes
                                                                                        if o.run == "os")
+
+
+def test_export_reads_the_checkpoint_as_the_tracker_does(tmp_path, monkeypatch, capsys):
+    """QA pass 13: export --checkpoint took neither the folder holding the official file nor the
+    tracker's environment variable (the tracker's checkpoint: takes both), and export.json held
+    no sha256 of the checkpoint for MixFormerV2 and OSTrack."""
+    import hashlib
+    import json
+
+    from mata_eval.cli import build_parser
+
+    torch.manual_seed(3)
+    ck = tmp_path / "ck" / "OSTrack_ep0300.pth.tar"
+    ck.parent.mkdir()
+    torch.save({"net": vit.OSTrackNet(TINY_OS).state_dict()}, ck)
+    monkeypatch.setattr(vit, "OSTRACK_256", TINY_OS)   # the tiny network stands for the official one
+    parser = build_parser()
+    args = parser.parse_args(["export", "ostrack", "--checkpoint", str(ck.parent), "--out", str(tmp_path / "a")])
+    assert args.func(args) == 0
+    doc = json.loads((tmp_path / "a" / "export.json").read_text())
+    assert doc["checkpoint"] == str(ck) and doc["checkpoint_sha256"] == hashlib.sha256(ck.read_bytes()).hexdigest()
+    monkeypatch.setenv("MATA_OSTRACK", str(ck))
+    args = parser.parse_args(["export", "ostrack", "--out", str(tmp_path / "b")])
+    assert args.func(args) == 0 and json.loads((tmp_path / "b" / "export.json").read_text())["checkpoint"] == str(ck)

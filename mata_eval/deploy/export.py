@@ -315,10 +315,15 @@ def _mixformer_wrappers(net: Any):
     return Full(), Template(), Search()
 
 
-def _load_vit_network(kind: str, variant: str, checkpoint, random_weights: bool, seed: int, trust_pickle: bool):
+def _load_vit_network(kind: str, variant: str, checkpoint, random_weights: bool, seed: int,
+                      trust_pickle: bool) -> tuple[Any, Path | None]:
+    """The network to export and the checkpoint file it was loaded from (None: random weights):
+    ``checkpoint`` a file or a folder holding the official file, else the tracker's environment
+    variable, as the tracker's ``checkpoint:`` reads them."""
     import torch
 
     from mata_eval_plugins.trackers import vit
+    from mata_eval_plugins.trackers.mixformerv2 import checkpoint_path
 
     if kind == "mixformerv2":
         from mata_eval_plugins.trackers.mixformerv2 import SOURCE, VARIANTS
@@ -327,21 +332,23 @@ def _load_vit_network(kind: str, variant: str, checkpoint, random_weights: bool,
             raise ValueError(f"mixformerv2 export: --variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
         v = VARIANTS[variant]
         cfg, build, official = getattr(vit, v.config), vit.MixFormerV2Net, vit.OfficialCheckpoint(v.label, v.file_name, SOURCE)
+        env_var, file_name = v.env_var, v.file_name
     else:
-        from mata_eval_plugins.trackers.ostrack import FILE_NAME, SOURCE
+        from mata_eval_plugins.trackers.ostrack import ENV_VAR, FILE_NAME, SOURCE
 
         cfg, build, official = vit.OSTRACK_256, vit.OSTrackNet, vit.OfficialCheckpoint("OSTrack-256", FILE_NAME, SOURCE)
+        env_var, file_name = ENV_VAR, FILE_NAME
     if checkpoint is not None and random_weights:   # (one of them was silently ignored)
         raise ValueError(f"{kind} export: give --checkpoint PATH or --random-weights, not both")
-    if checkpoint is not None:
-        net = build(cfg)
-        vit.load_checkpoint(net, checkpoint, official, trust_pickle=trust_pickle)
-    elif random_weights:
+    if random_weights:
         torch.manual_seed(seed)
-        net = build(cfg)
-    else:
-        raise ValueError(f"{kind} export: give --checkpoint PATH or --random-weights")
-    return net.eval()
+        return build(cfg).eval(), None
+    if checkpoint is None and not os.environ.get(env_var):
+        raise ValueError(f"{kind} export: give --checkpoint PATH (or set ${env_var}) or --random-weights")
+    path = checkpoint_path(checkpoint, env_var, file_name, SOURCE)
+    net = build(cfg)
+    vit.load_checkpoint(net, path, official, trust_pickle=trust_pickle)
+    return net.eval(), path
 
 
 def export_mixformerv2(out_dir: str | Path, checkpoint: str | Path | None = None, *, variant: str = "S",
@@ -353,8 +360,9 @@ def export_mixformerv2(out_dir: str | Path, checkpoint: str | Path | None = None
     _require_export_stack()
     import torch
 
-    net = network if network is not None else _load_vit_network("mixformerv2", variant, checkpoint, random_weights,
-                                                                seed, trust_pickle)
+    if network is None:
+        network, checkpoint = _load_vit_network("mixformerv2", variant, checkpoint, random_weights, seed, trust_pickle)
+    net = network
     net.eval()
     cfg = net.cfg
     prefix = prefix or f"mixformerv2_{variant}"
@@ -431,8 +439,9 @@ def export_ostrack(out_dir: str | Path, checkpoint: str | Path | None = None, *,
     _require_export_stack()
     import torch.nn as nn
 
-    net = network if network is not None else _load_vit_network("ostrack", "", checkpoint, random_weights, seed,
-                                                                 trust_pickle)
+    if network is None:
+        network, checkpoint = _load_vit_network("ostrack", "", checkpoint, random_weights, seed, trust_pickle)
+    net = network
     net.eval()
     cfg = net.cfg
 
