@@ -697,6 +697,9 @@ def _set_threads(n: int) -> None:
 def cmd_export(args: argparse.Namespace) -> int:
     from .deploy.export import MANIFEST, ParityError, export_mixformerv2, export_nanotrack, export_ostrack
 
+    if args.model != "mixformerv2" and (args.variant or args.form):   # (they were silently ignored)
+        print(f"error: mata-eval export {args.model}: --variant and --form are MixFormerV2's", file=sys.stderr)
+        return 2
     if args.checkpoint is None and not args.random_weights and args.model == "nanotrack":
         print(f"error: mata-eval export {args.model}: give --checkpoint PATH (the official weights) or "
               "--random-weights (pipeline tests only)", file=sys.stderr)
@@ -707,8 +710,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.model == "nanotrack":
             result = export_nanotrack(args.out, args.checkpoint, **common)
         elif args.model == "mixformerv2":
-            forms = {"both": ("full", "two_graph"), "full": ("full",), "two-graph": ("two_graph",)}[args.form]
-            result = export_mixformerv2(args.out, args.checkpoint, variant=args.variant, forms=forms, **common)
+            forms = {"both": ("full", "two_graph"), "full": ("full",), "two-graph": ("two_graph",)}[args.form or "both"]
+            result = export_mixformerv2(args.out, args.checkpoint, variant=args.variant or "S", forms=forms, **common)
         else:
             result = export_ostrack(args.out, args.checkpoint, **common)
     except ParityError as exc:
@@ -881,8 +884,8 @@ def _add_export(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the random weights and of the parity inputs")
     p.add_argument("--trust-pickle", action="store_true",
                    help="allow full unpickling of a trusted legacy checkpoint (default: weights only)")
-    p.add_argument("--variant", choices=("S", "B"), default="S", help="MixFormerV2 variant (default: S)")
-    p.add_argument("--form", choices=("both", "full", "two-graph"), default="both",
+    p.add_argument("--variant", choices=("S", "B"), help="MixFormerV2 variant (default: S)")
+    p.add_argument("--form", choices=("both", "full", "two-graph"),
                    help="MixFormerV2: one graph, template encoder + search step, or both (default)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--opset", type=int, default=DEFAULT_OPSET)

@@ -132,6 +132,8 @@ def test_nanotrack_random_weights_through_the_cli(tmp_path, capsys):
     assert args.func(args) == 2 and "--random-weights" in capsys.readouterr().err
     args = parser.parse_args(["export", "nanotrack", "--random-weights", "--checkpoint", "x.pth", "--out", str(tmp_path)])
     assert args.func(args) == 2 and "not both" in capsys.readouterr().err   # one of them was silently ignored
+    args = parser.parse_args(["export", "nanotrack", "--random-weights", "--variant", "B", "--out", str(tmp_path)])
+    assert args.func(args) == 2 and "--variant and --form are MixFormerV2's" in capsys.readouterr().err
 
 
 def test_nanotrack_from_pth_matches_the_published_pair_and_tracks(shared_data, tmp_path):
