@@ -511,6 +511,7 @@ def test_the_preflight_names_a_checkpoints_missing_keys(tmp_path):
     # QA pass 13: a bare "'cuda:1'" (a KeyError) at the first frame; a checkpoint silently ignored
     ("ostrack", "backend: onnxruntime\n  onnx: x\n  device", "cuda:1", "device: expected one of cpu, cuda, tensorrt"),
     ("mixformerv2", "random_weights: true\n  checkpoint", "ck.pth.tar", "random_weights: true ignores checkpoint"),
+    ("ostrack", "threads", -1, "threads: expected 0 (leave the library's setting) or more"),
     ("mixformerv2", "update_interval", 0, "update_interval: expected >= 1"),
     ("ostrack", "ce_keep_ratio", 1.5, "ce_keep_ratio: expected a number in (0, 1]"),
     ("vittrack", "window_alpha", -0.1, "window_alpha: expected a number in [0, 1]"),

@@ -24,13 +24,15 @@ _ORT_PROVIDERS = {
 
 def check_weights_and_device(tracker: str, params: object) -> None:
     """Load-time checks of a transformer tracker's ``Params``: ``random_weights`` and a
-    ``checkpoint`` exclude each other (random weights would ignore it without a word), and the
-    onnxruntime backend's ``device`` is one it has providers for."""
+    ``checkpoint`` exclude each other (random weights would ignore it without a word), the
+    onnxruntime backend's ``device`` is one it has providers for, ``threads`` is not negative."""
     if params.random_weights and params.checkpoint:
         raise ValueError(f"{tracker}: random_weights: true ignores checkpoint {params.checkpoint!r}; give one of them")
     if params.backend == "onnxruntime" and params.device not in _ORT_PROVIDERS:
         raise ValueError(f"{tracker}: device: expected one of {', '.join(_ORT_PROVIDERS)} with backend onnxruntime "
                          f"(torch device names are for backend torch), got {params.device!r}")
+    if params.threads < 0:
+        raise ValueError(f"{tracker}: threads: expected 0 (leave the library's setting) or more, got {params.threads}")
 
 
 class BackendUnavailable(RuntimeError):
