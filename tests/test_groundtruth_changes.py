@@ -20,6 +20,7 @@ import pytest
 from mata_eval import cli
 from mata_eval.data.datasets.annotations import read_boxes
 from mata_eval.run import runner, tasks
+from mata_eval.run.config import load_experiment
 
 STAY = '''
     from dataclasses import dataclass
@@ -141,12 +142,12 @@ def test_eval_names_the_sequences_run_on_other_ground_truth(workdir, capsys):
 
 
 def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_trusted(workdir, capsys):
-    """As an older mata-eval wrote it: no `groundtruth` in manifest.json or scores.json."""
+    """As an older mata-eval wrote it: no `groundtruth_read` in manifest.json, no `groundtruth` in scores.json."""
     run = workdir / "out" / "exp"
     assert main(["report", str(run)]) == 0
-    for name, key in (("manifest.json", None), ("scores.json", "meta")):
+    for name, key, record in (("manifest.json", None, "groundtruth_read"), ("scores.json", "meta", "groundtruth")):
         data = json.loads((run / name).read_text())
-        (data[key] if key else data).pop("groundtruth")
+        (data[key] if key else data).pop(record)
         (run / name).write_text(json.dumps(data))
     _move(workdir)                        # not compared: nothing says what the results were made on
     capsys.readouterr()
@@ -172,6 +173,36 @@ def test_a_box_the_run_did_not_read_changes_the_scores_not_the_results(workdir, 
     out = capsys.readouterr().out
     assert "2 finished sequence(s) kept" in out and "other ground truth" not in out
     assert _sr(run) == {"overall": 0.875, "a": 0.75, "b": 1.0}   # a: 3 of 4 frames still on the target
+
+
+def test_a_later_box_edited_in_a_run_with_occlusion_is_refused(workdir, capsys):
+    """The occluders are placed from every box: with `occlusion: {}` a later box edited by
+    hand means the run read other input (the start box alone would not show it)."""
+    exp = workdir / "exp.yaml"
+    exp.write_text(exp.read_text() + "occlusion: {}\n")
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--force"]) == 0
+    (workdir / "data" / "a" / "groundtruth_rect.txt").write_text(BOX * (N - 1) + MOVED)   # the last frame's only
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
+    err = capsys.readouterr().err
+    assert "whose ground truth changed since they were made (a): their tracker started from another box or " \
+           "the occluders were placed from other boxes" in err
+
+
+def test_a_record_of_every_box_written_under_the_old_key_is_not_compared(workdir, capsys):
+    """Review: a development version recorded every box's sha256 under `groundtruth` also
+    without occlusion; read as the start box's, its folders refused to resume for a false reason."""
+    from mata_eval.run import results
+
+    run = workdir / "out" / "exp"
+    manifest = json.loads((run / "manifest.json").read_text())
+    seqs = {s.name: s for s in runner.load_sequences(load_experiment("exp.yaml").runs[0])}
+    manifest["groundtruth"] = {k: results.groundtruth_sha256(s) for k, s in seqs.items()}
+    manifest.pop(results.RUN_INPUTS)
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    assert "2 finished sequence(s) kept" in capsys.readouterr().out
 
 
 def test_a_report_does_not_build_a_generated_dataset_to_compare_it(tmp_path, monkeypatch, capsys):

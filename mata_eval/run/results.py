@@ -265,6 +265,11 @@ def groundtruth_sha256(seq: Sequence) -> str:
     return digest.hexdigest()
 
 
+#: the manifest key of :func:`run_input_sha256` per sequence ("groundtruth", which a development
+#: version filled with :func:`groundtruth_sha256`, is ignored: such folders resume as older ones)
+RUN_INPUTS = "groundtruth_read"
+
+
 def run_input_sha256(seq: Sequence, occluded: bool) -> str:
     """sha256 of what a run reads of a sequence's annotations: the box its tracker starts from,
     and with the occlusion augmentation (``occluded``), which places its occluders from every

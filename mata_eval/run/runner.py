@@ -148,7 +148,7 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
     Refuses a kept sequence of ``only`` whose record differs now, as a changed model file is
     refused (one ``--sequences`` leaves out is not this run's to judge); one made by an older
     mata-eval (no record) is kept without one."""
-    out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
+    out, before = run_dir(exp, spec), (old or {}).get(results.RUN_INPUTS) or {}
     occluded = spec.occlusion is not None
     fingerprint = functools.partial(results.run_input_sha256, occluded=occluded)
     record, changed = dict(before), []
@@ -198,7 +198,7 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise ResultsConflict(f"{out} holds results {changed}; rerun with --force to replace them, "
                                   f"or change `output` in {exp.path}")
         results.clear_run(out)
-    inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
+    inputs[results.RUN_INPUTS] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(Path(exp.path).resolve()),

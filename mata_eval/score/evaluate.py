@@ -366,7 +366,7 @@ def evaluate_results(
         "groundtruth": {s.name: results.groundtruth_sha256(s) for s in sequences
                         if s.name in per_seq or s.name in unscorable},
         # sequences whose tracker results were made on other ground truth (the manifest's record)
-        "other_groundtruth": results.changed_groundtruth(manifest.get("groundtruth"), scored, functools.partial(
+        "other_groundtruth": results.changed_groundtruth(manifest.get(results.RUN_INPUTS), scored, functools.partial(
             results.run_input_sha256, occluded=(manifest.get("config") or {}).get("occlusion") is not None)),
     }
     return RunScores(
