@@ -105,17 +105,37 @@ def test_parity_failure_is_loud_and_leaves_no_file(tmp_path):
             return x * 2 if float(x.sum()) > 0 else x * 3
 
     pos = {"x": np.ones((1, 4), np.float32)}
-    with pytest.raises(E.ParityError, match="differs from torch"):
+    with pytest.raises(E.ParityError, match="differs from torch"), E._pending_removed_on_failure(tmp_path):
         E._export_checked("full", Branchy(), pos, [{"x": -np.ones((1, 4), np.float32)}], tmp_path / "b.onnx",
                           ["x"], ["y"])
     assert not (tmp_path / "b.onnx").exists()
     # over an earlier export: that one stays whole (QA pass 13: the failed re-export deleted its graph)
     (tmp_path / "b.onnx").write_bytes(b"the earlier, checked graph")
-    with pytest.raises(E.ParityError, match="differs from torch"):
-        E._export_checked("full", Branchy(), pos, [{"x": -np.ones((1, 4), np.float32)}], tmp_path / "b.onnx",
-                          ["x"], ["y"])
+    with pytest.raises(E.ParityError, match="differs from torch") as err:
+        with E._pending_removed_on_failure(tmp_path):
+            E._export_checked("full", Branchy(), pos, [{"x": -np.ones((1, 4), np.float32)}], tmp_path / "b.onnx",
+                              ["x"], ["y"])
+    assert str(err.value).startswith(f"{tmp_path / 'b.onnx'}: output 'y'")   # the name the user knows
     assert (tmp_path / "b.onnx").read_bytes() == b"the earlier, checked graph"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b.onnx"]
+
+
+@pytest.mark.parametrize("failure", [E.ParityError("the chain differs"), KeyboardInterrupt()])
+def test_a_failed_or_interrupted_two_graph_export_leaves_the_earlier_export_whole(tmp_path, monkeypatch, failure):
+    """Review: the template and search graphs were checked, then the chain check failed (or
+    Ctrl-C came): both stayed in the folder as .pending-* files."""
+    torch.manual_seed(1)
+    E.export_mixformerv2(tmp_path, network=vit.MixFormerV2Net(TINY_MF).eval(), prefix="tiny", forms=("two_graph",))
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+
+    def fail(*args, **kwargs):
+        raise failure
+
+    monkeypatch.setattr(E, "_check_chain", fail)
+    torch.manual_seed(2)   # other weights: a graph replaced would show
+    with pytest.raises(type(failure)):
+        E.export_mixformerv2(tmp_path, network=vit.MixFormerV2Net(TINY_MF).eval(), prefix="tiny", forms=("two_graph",))
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
 
 
 def test_nanotrack_random_weights_through_the_cli(tmp_path, capsys):

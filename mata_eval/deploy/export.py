@@ -1,6 +1,8 @@
 """``mata-eval export``: the PyTorch trackers to ONNX, with numerical parity against torch checked
 on every export (an export whose ONNX Runtime outputs differ from torch beyond the tolerance
-fails loudly and leaves no file behind).
+fails loudly; the graphs are written under a temporary name and take the place of the folder's
+old ones only once all are checked, so a failed or interrupted export leaves the earlier one whole
+and no new file behind).
 
 - ``nanotrack``: NanoTrack v2 from ``nanotrackv2.pth`` -> ``nanotrack_backbone_sim.onnx``
   (``input`` -> ``output``, spatial size free: 127 px exemplar and 255 px search) and
@@ -21,6 +23,7 @@ Heavy packages (torch, onnx, onnxruntime) are imported inside the functions.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -117,12 +120,12 @@ def check_parity(module: Any, path: Path, feeds: Sequence[dict[str, np.ndarray]]
         for name, r, g in zip(output_names, ref, got):
             r = r.detach().cpu().numpy()
             if r.shape != g.shape:
-                raise ParityError(f"{path}: output {name!r} has shape {g.shape} in ONNX Runtime, {r.shape} in torch")
+                raise ParityError(f"{_final(path)}: output {name!r} has shape {g.shape} in ONNX Runtime, {r.shape} in torch")
             diff = np.abs(g.astype(np.float64) - r.astype(np.float64))
             worst = max(worst, float(diff.max(initial=0.0)))
             bad = diff > atol + rtol * np.abs(r)
             if bad.any() or not np.all(np.isfinite(g)):
-                raise ParityError(f"{path}: output {name!r} differs from torch by up to {float(diff.max()):.3g} "
+                raise ParityError(f"{_final(path)}: output {name!r} differs from torch by up to {float(diff.max()):.3g} "
                                   f"(tolerance {atol:g} + {rtol:g} |torch|) at {int(bad.sum())} of {bad.size} "
                                   "values; the graph is not a faithful export")
     return worst
@@ -154,16 +157,29 @@ def _export_checked(role: str, module: Any, example: dict[str, np.ndarray], pari
     args = [torch.from_numpy(example[n]) for n in input_names]
     pending = path.with_name(PENDING + path.name)   # the export in the folder stays until this one is checked
     export_module(module, args, pending, input_names, output_names, dynamic_axes, opset)
-    try:
-        err = check_parity(module, pending, [example] + list(parity_feeds), input_names, output_names, atol, rtol)
-    except ParityError:
-        pending.unlink(missing_ok=True)
-        raise
+    err = check_parity(module, pending, [example] + list(parity_feeds), input_names, output_names, atol, rtol)
     return ExportedGraph(role, pending, tuple(input_names), tuple(output_names), err)
 
 
 #: prefix of a graph written and being checked, renamed to its name with the manifest (:func:`_write_manifest`)
 PENDING = ".pending-"
+
+
+def _final(path: Path) -> Path:
+    """The name a pending graph takes once the export is checked (what errors name)."""
+    return Path(path).with_name(Path(path).name.removeprefix(PENDING))
+
+
+@contextlib.contextmanager
+def _pending_removed_on_failure(out: Path):
+    """Delete the pending graphs in ``out`` when the export fails or is interrupted (Ctrl-C)
+    before :func:`_write_manifest` puts them in place."""
+    try:
+        yield
+    except BaseException:
+        for p in Path(out).glob(PENDING + "*"):
+            p.unlink(missing_ok=True)
+        raise
 
 
 def _write_manifest(result: ExportResult, extra: dict) -> ExportResult:
@@ -174,7 +190,7 @@ def _write_manifest(result: ExportResult, extra: dict) -> ExportResult:
 
     graphs = []
     for g in result.graphs:
-        final = g.path.with_name(g.path.name.removeprefix(PENDING))
+        final = _final(g.path)
         os.replace(g.path, final)
         graphs.append(dataclasses.replace(g, path=final))
     result = dataclasses.replace(result, graphs=tuple(graphs))
@@ -253,23 +269,24 @@ def export_nanotrack(out_dir: str | Path, checkpoint: str | Path | None = None, 
     search = _images(rng, (1, 3, 255, 255), pixels=True)
     exemplar = _images(rng, (1, 3, 127, 127), pixels=True)
     dyn = {"input": {2: "height", 3: "width"}, "output": {2: "feat_height", 3: "feat_width"}}
-    backbone = _export_checked("backbone", model.backbone, {"input": search}, [{"input": exemplar}],
-                               out / NANOTRACK_FILES["backbone"], ["input"], ["output"], dyn, opset, atol, rtol)
-    import torch
+    with _pending_removed_on_failure(out):
+        backbone = _export_checked("backbone", model.backbone, {"input": search}, [{"input": exemplar}],
+                                   out / NANOTRACK_FILES["backbone"], ["input"], ["output"], dyn, opset, atol, rtol)
+        import torch
 
-    with torch.no_grad():
-        zf = model.backbone(torch.from_numpy(exemplar)).numpy()
-        xf = model.backbone(torch.from_numpy(search)).numpy()
-    head_feeds = {"input1": zf, "input2": xf}
-    head = _export_checked("head", Head(model.ban_head), head_feeds,
-                           [{"input1": zf + rng.standard_normal(zf.shape).astype(np.float32),
-                             "input2": xf + rng.standard_normal(xf.shape).astype(np.float32)}],
-                           out / NANOTRACK_FILES["head"], ["input1", "input2"], ["output1", "output2"], None,
-                           opset, atol, rtol)
-    result = ExportResult("nanotrack", out, (backbone, head), {"exemplar_size": 127, "instance_size": 255})
-    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
-                                    "random_weights_seed": None if checkpoint else seed})
+        with torch.no_grad():
+            zf = model.backbone(torch.from_numpy(exemplar)).numpy()
+            xf = model.backbone(torch.from_numpy(search)).numpy()
+        head_feeds = {"input1": zf, "input2": xf}
+        head = _export_checked("head", Head(model.ban_head), head_feeds,
+                               [{"input1": zf + rng.standard_normal(zf.shape).astype(np.float32),
+                                 "input2": xf + rng.standard_normal(xf.shape).astype(np.float32)}],
+                               out / NANOTRACK_FILES["head"], ["input1", "input2"], ["output1", "output2"], None,
+                               opset, atol, rtol)
+        result = ExportResult("nanotrack", out, (backbone, head), {"exemplar_size": 127, "instance_size": 255})
+        return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                        "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                        "random_weights_seed": None if checkpoint else seed})
 
 
 # --- MixFormerV2 ---------------------------------------------------------------------------------
@@ -377,32 +394,35 @@ def export_mixformerv2(out_dir: str | Path, checkpoint: str | Path | None = None
 
     example, other = feed(), feed()
     full_m, template_m, search_m = _mixformer_wrappers(net)
-    graphs = []
-    if "full" in forms:
-        graphs.append(_export_checked("full", full_m, example, [other], out / files["full"],
-                                      ["template", "online_template", "search"], MIXFORMER_OUTPUTS, None, opset, atol, rtol))
-    if "two_graph" in forms:
-        kv_names = [f"{kind}_{i}" for i in range(cfg.depth) for kind in ("key", "value")]
-        graphs.append(_export_checked("template", template_m, example, [other], out / files["template"],
-                                      ["template", "online_template"], kv_names, None, opset, atol, rtol))
+    with _pending_removed_on_failure(out):
+        graphs = []
+        if "full" in forms:
+            graphs.append(_export_checked("full", full_m, example, [other], out / files["full"],
+                                          ["template", "online_template", "search"], MIXFORMER_OUTPUTS, None,
+                                          opset, atol, rtol))
+        if "two_graph" in forms:
+            kv_names = [f"{kind}_{i}" for i in range(cfg.depth) for kind in ("key", "value")]
+            graphs.append(_export_checked("template", template_m, example, [other], out / files["template"],
+                                          ["template", "online_template"], kv_names, None, opset, atol, rtol))
 
-        def search_feed(f):
-            with torch.no_grad():
-                kv = template_m(torch.from_numpy(f["template"]), torch.from_numpy(f["online_template"]))
-            return {"search": f["search"], **{n: t.numpy() for n, t in zip(kv_names, kv)}}
+            def search_feed(f):
+                with torch.no_grad():
+                    kv = template_m(torch.from_numpy(f["template"]), torch.from_numpy(f["online_template"]))
+                return {"search": f["search"], **{n: t.numpy() for n, t in zip(kv_names, kv)}}
 
-        s_example, s_other = search_feed(example), search_feed(other)
-        graphs.append(_export_checked("search", search_m, s_example, [s_other], out / files["search"],
-                                      ["search"] + kv_names, MIXFORMER_OUTPUTS, None, opset, atol, rtol))
-        # The chain template graph -> search graph, both in ONNX Runtime, equals the torch full forward.
-        _check_chain(net, graphs[-2].path, graphs[-1].path, other, kv_names, atol, rtol)
-    if not graphs:
-        raise ValueError(f"mixformerv2 export: forms must include 'full' and/or 'two_graph', got {list(forms)}")
-    config = {k: getattr(cfg, k) for k in ("template_size", "search_size", "depth", "feat_sz", "embed_dim", "num_heads")}
-    result = ExportResult("mixformerv2", out, tuple(graphs), {**config, "variant": variant})
-    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
-                                    "random_weights_seed": None if checkpoint else seed})
+            s_example, s_other = search_feed(example), search_feed(other)
+            graphs.append(_export_checked("search", search_m, s_example, [s_other], out / files["search"],
+                                          ["search"] + kv_names, MIXFORMER_OUTPUTS, None, opset, atol, rtol))
+            # The chain template graph -> search graph, both in ONNX Runtime, equals the torch full forward.
+            _check_chain(net, graphs[-2].path, graphs[-1].path, other, kv_names, atol, rtol)
+        if not graphs:
+            raise ValueError(f"mixformerv2 export: forms must include 'full' and/or 'two_graph', got {list(forms)}")
+        config = {k: getattr(cfg, k)
+                  for k in ("template_size", "search_size", "depth", "feat_sz", "embed_dim", "num_heads")}
+        result = ExportResult("mixformerv2", out, tuple(graphs), {**config, "variant": variant})
+        return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                        "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                        "random_weights_seed": None if checkpoint else seed})
 
 
 def _check_chain(net: Any, template_path: Path, search_path: Path, feed: dict, kv_names: list[str],
@@ -420,7 +440,7 @@ def _check_chain(net: Any, template_path: Path, search_path: Path, feed: dict, k
     for name, r, g in zip(MIXFORMER_OUTPUTS, ref, got):
         r = r.numpy()
         if not np.allclose(g, r, atol=atol, rtol=rtol):
-            raise ParityError(f"{search_path}: the template graph + search graph chain differs from the torch full "
+            raise ParityError(f"{_final(search_path)}: the template graph + search graph chain differs from the torch full "
                               f"forward on {name!r} by up to {float(np.abs(g - r).max()):.3g}")
 
 
@@ -460,16 +480,16 @@ def export_ostrack(out_dir: str | Path, checkpoint: str | Path | None = None, *,
         return {"template": _images(rng, (1, 3, cfg.template_size, cfg.template_size), False),
                 "search": _images(rng, (1, 3, cfg.search_size, cfg.search_size), False)}
 
-    graph = _export_checked("full", Wrapper(), feed(), [feed()], out / f"{name}.onnx", ["template", "search"],
-                            OSTRACK_OUTPUTS, None, opset, atol, rtol)
-    bad = graph_op_types(graph.path) & DATA_DEPENDENT_OPS
-    if bad:
-        graph.path.unlink(missing_ok=True)
-        raise ParityError(f"{graph.path}: the graph contains data-dependent ops {sorted(bad)}; candidate elimination "
-                          "must use constant indices")
-    config = {"template_size": cfg.template_size, "search_size": cfg.search_size, "feat_sz": cfg.feat_sz,
-              "ce_keep_ratio": list(cfg.ce_keep_ratio), "ce_loc": list(cfg.ce_loc)}
-    result = ExportResult("ostrack", out, (graph,), config)
-    return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
-                                    "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
-                                    "random_weights_seed": None if checkpoint else seed})
+    with _pending_removed_on_failure(out):
+        graph = _export_checked("full", Wrapper(), feed(), [feed()], out / f"{name}.onnx", ["template", "search"],
+                                OSTRACK_OUTPUTS, None, opset, atol, rtol)
+        bad = graph_op_types(graph.path) & DATA_DEPENDENT_OPS
+        if bad:
+            raise ParityError(f"{_final(graph.path)}: the graph contains data-dependent ops {sorted(bad)}; candidate elimination "
+                              "must use constant indices")
+        config = {"template_size": cfg.template_size, "search_size": cfg.search_size, "feat_sz": cfg.feat_sz,
+                  "ce_keep_ratio": list(cfg.ce_keep_ratio), "ce_loc": list(cfg.ce_loc)}
+        result = ExportResult("ostrack", out, (graph,), config)
+        return _write_manifest(result, {"checkpoint": str(checkpoint) if checkpoint else None,
+                                        "checkpoint_sha256": _sha256(Path(checkpoint)) if checkpoint else None,
+                                        "random_weights_seed": None if checkpoint else seed})
