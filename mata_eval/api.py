@@ -59,7 +59,7 @@ def run(experiment: str | Path, *, runs: Sequence[str] | None = None, sequences:
     exp = load_experiment(experiment)
     if output is not None:
         exp = dataclasses.replace(exp, output=Path(output).resolve())
-    checked = plan(exp, runs)
+    checked = plan(exp, runs, sequences)
     if checked.problems:
         raise PreflightError(checked.problems)
     log = print if progress else (lambda _msg: None)

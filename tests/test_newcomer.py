@@ -122,8 +122,15 @@ def test_one_sequence_that_cannot_run_is_named_and_sequences_runs_the_others(tmp
         assert f"{root / name / 'groundtruth_rect.txt'}: 11 ground-truth lines but 12 frames" in err
     assert main(["run", str(exp), "-j", "1", "-q"]) == 2
     assert main(["validate", str(exp), "--sequences", "square"]) == 0   # as run --sequences square will run
+    capsys.readouterr()
+    assert main(["validate", str(exp), "--sequences", "square", "nosuch"]) == 2   # review: said "ready"
+    assert ("error: unknown sequence name(s) nosuch (--sequences, or sequences= in Python); the sequences are: "
+            "short, short2, square") in capsys.readouterr().err
     assert main(["run", str(exp), "-j", "1", "-q", "--sequences", "square", "--no-report"]) == 0
     assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["square.txt"]
+    # the Python API as the command line (review: its preflight checked every sequence)
+    scores = me.run(str(exp), sequences=["square"], jobs=1, progress=False, output=tmp_path / "api")
+    assert list(scores[0].sequences) == ["square"]
     # with the occlusion augmentation too, and a sequence without frames (review: the augmentation
     # read frame 0 of every sequence, also those --sequences left out: a traceback)
     _folder_dataset(tmp_path / "bare", frames=False)

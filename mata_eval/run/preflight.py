@@ -118,6 +118,30 @@ def find_problems(runs: Iterable[RunSpec], sequences: Iterable[str] | None = Non
             for (what, _), (error, names) in checked.items() if error is not None]
 
 
+def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str]) -> str:
+    """The problem of ``--sequences`` names that are in no dataset of the selected runs."""
+    return (f"unknown sequence name(s) {', '.join(sorted(unknown))} (--sequences, or sequences= in Python); "
+            f"the sequences are: {', '.join(sorted(known))}")
+
+
+def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str]) -> str | None:
+    """:func:`unknown_sequences_line` for ``sequences`` outside every dataset of ``specs``, or None.
+    A generated dataset (``check()``: built on first use) or one that cannot be read (its own
+    problem) is not read for this: the run says it then."""
+    known: set[str] = set()
+    blocks = {json.dumps(s.resolved["dataset"], sort_keys=True, default=str): s.dataset for s in specs}
+    for block in blocks.values():
+        try:
+            dataset = block.create()
+            if hasattr(dataset, "check"):
+                return None
+            known.update(s.name for s in dataset.sequences())
+        except Exception:
+            return None
+    unknown = set(sequences) - known
+    return unknown_sequences_line(unknown, known) if unknown else None
+
+
 def _runs_text(names: tuple[str, ...], n_all: int) -> str:
     if len(names) == n_all:
         return "all runs" if n_all > 1 else "the run"
@@ -135,6 +159,8 @@ def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable
     if unknown:
         return Plan((), (), (f"unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
     specs = [r for r in exp.runs if not only or r.name in only]
+    if sequences and (line := _unknown_sequences(specs, sequences)):
+        return Plan((), (), (line,))
     problems = find_problems(specs, sequences)
     by_name = {r.name: r for r in specs}
     skipped: dict[str, Problem] = {}

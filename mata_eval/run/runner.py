@@ -27,6 +27,7 @@ from ..core.sequence import Sequence
 from . import results
 from .config import Experiment, RunSpec, config_change
 from .executors import Executor, LocalExecutor
+from .preflight import unknown_sequences_line
 from .scheduler import RateWarning
 from .stop import stop_on_signals
 from .tasks import SequenceResult, Task, as_run_sees_it, base_sequences, make_tasks, plan
@@ -331,8 +332,7 @@ def run_experiment(
     if sequences and specs:
         known_seqs = {s.name for spec in specs for s in load_sequences(spec)}
         if set(sequences) - known_seqs:
-            raise UserError(f"unknown sequence name(s) {', '.join(sorted(set(sequences) - known_seqs))} "
-                            f"(--sequences, or sequences= in Python); the sequences are: {', '.join(sorted(known_seqs))}")
+            raise UserError(unknown_sequences_line(set(sequences) - known_seqs, known_seqs))
     outcomes: list[SequenceOutcome] = []
     with contextlib.ExitStack() as locks, stop_on_signals():
         for spec in specs:
