@@ -43,7 +43,7 @@ import hashlib
 import importlib.metadata as md
 import itertools
 import json
-import warnings
+import sys
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
@@ -99,9 +99,9 @@ class PluginBlock:
             if callable(close):
                 try:
                     close()
-                except Exception as exc:
-                    warnings.warn(f"{self.kind} {self.name}: close() raised {type(exc).__name__}: {exc}",
-                                  stacklevel=2)
+                except Exception as exc:   # one line (a warning showed contextlib's source line)
+                    print(f"warning: {self.kind} {self.name}: close() raised {type(exc).__name__}: {exc}",
+                          file=sys.stderr, flush=True)
 
 
 @dataclasses.dataclass(frozen=True)
