@@ -640,11 +640,14 @@ def cmd_profile(args: argparse.Namespace) -> int:
             print(f"error: {exp.path}: no run {args.run!r} (runs: {', '.join(r.name for r in exp.runs)})", file=sys.stderr)
             return 2
         spec = matches[0]
-    # what validate and run check first (QA pass: a wrong checkpoint or backend was a traceback here)
-    if _preflight(exp, [spec.name], args.debug, [args.sequence] if args.sequence else None) is None:
-        return 2
-    if args.threads:
+    if args.threads:   # before the preflight, which builds the blocks (ONNX Runtime sessions read it)
         _set_threads(args.threads)
+    # what validate and run check first (QA pass: a wrong checkpoint or backend was a traceback here);
+    # the run asked for is profiled or refused, also one marked optional (it would be "skipped")
+    spec = dataclasses.replace(spec, optional=False)
+    if _preflight(dataclasses.replace(exp, runs=(spec,)), [spec.name], args.debug,
+                  [args.sequence] if args.sequence else None) is None:
+        return 2
     try:
         profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
                               experiment=str(exp.path), time_scale=_time_scales(args.time_scale))

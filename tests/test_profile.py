@@ -321,3 +321,13 @@ def test_profile_checks_what_validate_and_run_check_first(tmp_path, capsys, monk
     err = capsys.readouterr().err
     assert "error: tracker qa_prof_broken:Broken" in err and "TensorRT is not installed" in err
     assert not (tmp_path / "p.json").exists()
+    # a run marked optional is profiled or refused with the same line (review: "skipping ..." then
+    # "no run left to do")
+    path.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 8, "
+                    "width: 160, height: 120}\ntracker: {name: kcf}\n"
+                    "matrix:\n  tracker:\n    kcf: {name: kcf}\n    broken: {name: 'qa_prof_broken:Broken'}\n"
+                    "optional: [broken]\n")
+    assert main(["profile", str(path), "--run", "broken", "--out", str(tmp_path / "p.json"), "--frames", "2"]) == 2
+    captured = capsys.readouterr()
+    assert "skipping" not in captured.out + captured.err and "no run left" not in captured.err
+    assert "error: tracker qa_prof_broken:Broken (the run): TensorRT is not installed" in captured.err
