@@ -512,12 +512,18 @@ def test_a_sequence_that_cannot_be_scored_is_named_and_the_others_are_scored(tmp
     assert cli.main(shlex.split(hint.group(1)) + ["-j", "1", "-q"]) == 0
     assert len((copy / "good.frames.csv").read_text().splitlines()) == 7   # header + 6 frames
     assert len((run / "good.frames.csv").read_text().splitlines()) == 6    # the original untouched
-    # a copy under another name: the run writes its own name's folder, so the hint says to rename it
+    # a copy under another name: the run writes its own name's folder, so the hint says to move it
+    # into a folder of its own (review: renaming it beside copy/exp collided with that folder)
     other = tmp_path / "copy" / "mine"
     shutil.copytree(run, other)
     (other / "scores.json").unlink()
     assert cli.main(["report", str(other)]) == 0
-    assert "; to run it again: rename this folder exp (the run writes there), then mata-eval run" in capsys.readouterr().out
+    hint = re.search(r"; to run it again: move this folder into an empty folder DIR as DIR/exp \(the run writes "
+                     r"there\), then mata-eval (run .*)$", capsys.readouterr().out, re.M)
+    (tmp_path / "dir").mkdir()
+    other.rename(tmp_path / "dir" / "exp")
+    assert cli.main([a.replace("DIR", str(tmp_path / "dir")) for a in shlex.split(hint.group(1))] + ["-j", "1", "-q"]) == 0
+    assert len((tmp_path / "dir" / "exp" / "good.frames.csv").read_text().splitlines()) == 7
     scores = json.loads((run / "scores.json").read_text())
     assert set(scores["sequences"]) == {"nan"} and set(scores["failures"]) == {"good", "broken"}
     (run / "nan.txt").write_text("1,2,3\n")

@@ -348,10 +348,12 @@ def evaluate_results(
     manifest = (results.read_manifest(d) or {}) if layout == "mata" else {}
     if manifest.get("experiment_file"):   # what recomputes the sequence, in this folder (-o: copied or moved)
         run = manifest.get("run")
-        again = (f"mata-eval run {shlex.quote(manifest['experiment_file'])} -o {shlex.quote(str(d.resolve().parent))} "
-                 f"--runs {run} --force --sequences")
-        rename = "" if d.resolve().name == run else f"rename this folder {run} (the run writes there), then "
-        unscorable = {k: f"{why}; to run it again: {rename}{again} {k}" for k, why in unscorable.items()}
+        # a folder named otherwise: the run writes <-o>/<run>, and a rename beside it may collide
+        moved = d.resolve().name != run
+        again = (f"mata-eval run {shlex.quote(manifest['experiment_file'])} "
+                 f"-o {'DIR' if moved else shlex.quote(str(d.resolve().parent))} --runs {run} --force --sequences")
+        move = f"move this folder into an empty folder DIR as DIR/{run} (the run writes there), then " if moved else ""
+        unscorable = {k: f"{why}; to run it again: {move}{again} {k}" for k, why in unscorable.items()}
     dataset = (manifest.get("config") or {}).get("dataset")
     scored = [s for s in sequences if s.name in per_seq]
     meta = {
