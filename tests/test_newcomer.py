@@ -311,3 +311,25 @@ def test_a_run_rebuilt_from_another_folder_reads_its_own_relative_paths(tmp_path
     assert json.loads((run / "scores.json").read_text())["summary"]["overall"]["sr"] == pytest.approx(sr)
     assert cli.main(["play", str(run), "--sequence", "square", "--out", "sheet.png", "--sheet", "2"]) == 0
     assert (b / "sheet.png").is_file() and Path.cwd() == b  # written where asked, and back in b
+
+
+def test_validate_checks_sequence_names_of_the_synthetic_suite_without_generating_it(tmp_path, monkeypatch, capsys):
+    """QA pass 14: validate said ready for a typo in --sequences or `sequences:`, and run
+    rendered the whole suite before refusing it (1.1 GB for the paper's)."""
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    exp = _write(tmp_path, f"""
+        output: {tmp_path / 'out'}
+        dataset: {{name: synthetic, n_sequences: 3, n_frames: 8, width: 160, height: 120}}
+        tracker: {{name: kcf}}
+        """)
+    assert main(["validate", str(exp), "--sequences", "syn001"]) == 2
+    assert ("unknown sequence name(s) syn001 (--sequences, or sequences= in Python); the sequences are: "
+            "syn001_cruise, syn002_manoeuvre, syn003_outofview") in capsys.readouterr().err
+    assert main(["run", str(exp), "-q", "-j", "1", "--sequences", "syn001"]) == 2
+    exp.write_text(exp.read_text().replace("height: 120}", "height: 120, sequences: [syn01_cruise]}"))
+    assert main(["validate", str(exp)]) == 2
+    assert "dataset synthetic: sequences: unknown sequence(s) 'syn01_cruise'; available (3)" in capsys.readouterr().err
+    assert not (tmp_path / "cache").exists()                       # nothing rendered
+    exp.write_text(exp.read_text().replace("[syn01_cruise]", "[syn002_manoeuvre]"))
+    assert main(["run", str(exp), "-q", "-j", "1", "--no-report"]) == 0   # the generated suite has these names
+    assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["syn002_manoeuvre.txt"]

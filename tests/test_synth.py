@@ -152,6 +152,15 @@ def test_suite_specs_names_are_stable_and_independent_of_suite_size():
     assert synth.suite_specs(3, 20, W, H, seed=5)[0].seed != b[0].seed
 
 
+def test_short_sequences_of_every_scenario_are_generated():
+    """QA pass 14: an out-of-view sequence of 3 to 8 frames failed with numpy's "low >= high"."""
+    from mata_eval.data.synth.render import render
+
+    for n in range(2, 13):
+        for spec in synth.suite_specs(5, n, 64, 48):
+            assert render(spec, lambda k, frame: None).groundtruth.shape == (n, 4), (n, spec.name)
+
+
 def test_write_suite_uav123_layout_round_trip(tmp_path):
     specs = synth.suite_specs(2, 12, W, H, seed=1)
     root = tmp_path / "suite"

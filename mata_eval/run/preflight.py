@@ -126,16 +126,20 @@ def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str]) -> str:
 
 def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str]) -> str | None:
     """:func:`unknown_sequences_line` for ``sequences`` outside every dataset of ``specs``, or None.
-    A generated dataset (``check()``: built on first use) or one that cannot be read (its own
-    problem) is not read for this: the run says it then."""
+    A generated dataset (``check()``: built on first use) is asked for its ``sequence_names()``
+    (without one, or when a dataset cannot be read, its own problem, nothing is said here: the
+    run says it then)."""
     known: set[str] = set()
     blocks = {json.dumps(s.resolved["dataset"], sort_keys=True, default=str): s.dataset for s in specs}
     for block in blocks.values():
         try:
             dataset = block.create()
             if hasattr(dataset, "check"):
-                return None
-            known.update(s.name for s in dataset.sequences())
+                if not hasattr(dataset, "sequence_names"):
+                    return None
+                known.update(dataset.sequence_names())
+            else:
+                known.update(s.name for s in dataset.sequences())
         except Exception:
             return None
     unknown = set(sequences) - known

@@ -93,14 +93,28 @@ class SyntheticDataset:
         return cache_root() / "synthetic" / hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def check(self) -> None:
-        """Preflight: a suite already at :attr:`root` matches the asked parameters (a missing one
-        is generated on first use, so nothing else can be wrong before the run)."""
+        """Preflight: a suite already at :attr:`root` matches the asked parameters and has the
+        ``sequences`` asked for (a missing one is generated on first use)."""
         from ..synth import read_suite_info
 
         root = self.root
         if root.exists() and read_suite_info(root) is None and any(root.iterdir()):
             raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; choose another root")
         self._check_suite(root, read_suite_info(root))
+        self.sequence_names()
+
+    def sequence_names(self) -> list[str]:
+        """The names :meth:`sequences` will have, without generating the suite (the preflight
+        checks ``--sequences`` and ``sequences:`` against them: a typo cost a whole suite's
+        rendering first)."""
+        from ..synth import read_suite_info
+        from ..synth.spec import suite_name
+        from .annotations import select
+
+        info = read_suite_info(self.root)
+        names = ([sp["name"] for sp in info.get("sequences", [])] if info
+                 else [suite_name(i) for i in range(self.params.n_sequences)])
+        return select(names, self.params.sequences, "dataset synthetic: sequences")
 
     def _check_suite(self, root: Path, info: dict | None) -> None:
         suite = (info or {}).get("suite")

@@ -185,7 +185,8 @@ def _look_away(rng: np.random.Generator, spec: SequenceSpec, length: float, zoom
     n, W, H = spec.n_frames, spec.width, spec.height
     rise = int(np.clip(round(0.05 * n), 2, 15))
     hold = int(np.clip(round(0.12 * n), 2, 40))
-    k0 = int(rng.integers(max(1, int(0.25 * n)), max(2, n - 2 * rise - hold)))
+    low = max(1, int(0.25 * n))   # (a short sequence, n <= 8, has a spell running past its end)
+    k0 = int(rng.integers(low, max(low + 1, n - 2 * rise - hold)))
     k = np.arange(n)
     bump = _smoothstep((k - k0) / rise) - _smoothstep((k - k0 - rise - hold) / rise)
     direction = rng.uniform(0, 2 * np.pi)

@@ -110,6 +110,11 @@ def spread_quantiles(seed: int, i: int) -> tuple[float, float, float]:
     return tuple(float(x) for x in np.clip(u, 1e-6, 1 - 1e-6))
 
 
+def suite_name(i: int) -> str:
+    """The name of sequence ``i`` (from 0) of a suite: ``syn<i+1>_<scenario>``."""
+    return f"syn{i + 1:03d}_{SCENARIOS[i % len(SCENARIOS)]}"
+
+
 def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, height: int = 720,
                 seed: int = 0, n_textures: int = 4, motion: str = "uav123") -> list[SequenceSpec]:
     """The default suite: sequence ``i`` is named ``syn<i+1>_<scenario>``, stages the scenario
@@ -122,7 +127,7 @@ def suite_specs(n_sequences: int = 20, n_frames: int = 300, width: int = 1280, h
     specs = []
     for i in range(n_sequences):
         sp = make_spec(derive_seed(seed, 100, i), n_frames, width, height,
-                       name=f"syn{i + 1:03d}_{SCENARIOS[i % len(SCENARIOS)]}",
+                       name=suite_name(i),
                        scenario=SCENARIOS[i % len(SCENARIOS)],
                        texture_seed=derive_seed(seed, 200, i % max(1, n_textures)), motion=motion,
                        quantiles=spread_quantiles(seed, i))
