@@ -109,3 +109,28 @@ def test_profile_without_the_block(tmp_path):
         EOP.Params(tracker_latency="profile", latency_profile=str(path))
     with pytest.raises(ProfileError, match="cannot read timing profile"):
         EOP.Params(tracker_latency="profile", latency_profile=str(tmp_path / "missing.json"))
+
+
+def test_a_rerun_after_the_profile_was_measured_again_is_refused(tmp_path, monkeypatch, capsys):
+    """QA pass 14 (embedded engineer): the manifest held the profile's path only, so a rerun
+    after `mata-eval profile` wrote new latencies into it kept the old results as they were."""
+    from mata_eval.cli import main
+
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    profile = tmp_path / "p.json"
+    write_profile(profile_from_samples({"tracker": [0.2, 0.2]}), profile)            # 5 Hz
+    (tmp_path / "exp.yaml").write_text(
+        f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 12, width: 160, "
+        f"height: 120}}\ntracker: {{name: kcf}}\nprotocol: {{name: eop, tracker_hz: profile, "
+        f"tracker_latency: profile, latency_profile: {profile}}}\n")
+    run = ["run", str(tmp_path / "exp.yaml"), "-q", "-j", "1", "--no-report"]
+    assert main(run) == 0
+    boxes = tmp_path / "out" / "exp" / "syn001_cruise.txt"
+    at_5hz = boxes.read_text()
+    write_profile(profile_from_samples({"tracker": [0.04, 0.04]}), profile)          # measured again: 25 Hz
+    capsys.readouterr()
+    assert main(run) == 2
+    assert (f"holds results made with another content of its latency_profile file {profile} (sha256 "
+            in capsys.readouterr().err)
+    assert main(run + ["--force"]) == 0
+    assert boxes.read_text() != at_5hz   # the new latencies give other held boxes

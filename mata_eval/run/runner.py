@@ -79,16 +79,20 @@ def run_dir(exp: Experiment, spec: RunSpec) -> Path:
 
 
 def model_files(spec: RunSpec) -> dict[str, dict[str, str]]:
-    """The weight files the run's tracker reads (its optional ``model_files(params)``), each
-    with its sha256: found through an environment variable or the shared data, a file is not in
-    the configuration, so the manifest records what was read. Empty when the tracker names none
-    or one is missing (the preflight says which)."""
-    files = getattr(spec.tracker.cls, "model_files", None)
-    try:
-        paths = files(spec.tracker.params) if files is not None else {}
-        return {key: {"path": str(p), "sha256": results.file_sha256(p)} for key, p in paths.items()}
-    except (OSError, ValueError):   # e.g. an unreadable export.json
-        return {}
+    """The files the run's tracker and protocol read (their optional ``model_files(params)``:
+    weights, a timing profile), each with its sha256: a file's content is not in the
+    configuration (nor, found through an environment variable or the shared data, its path), so
+    the manifest records what was read. Empty for a block that names none or whose file is
+    missing (the preflight says which)."""
+    out = {}
+    for block in (spec.tracker, spec.protocol):
+        files = getattr(block.cls, "model_files", None)
+        try:
+            paths = files(block.params) if files is not None else {}
+            out.update({key: {"path": str(p), "sha256": results.file_sha256(p)} for key, p in paths.items()})
+        except (OSError, ValueError):   # e.g. an unreadable export.json
+            pass
+    return out
 
 
 def preset_values(spec: RunSpec) -> dict[str, dict[str, Any]]:

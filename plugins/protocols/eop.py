@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal, Mapping
 
 import numpy as np
@@ -142,6 +143,12 @@ class EOP:
         self.links = {parse_link(k): float(v) for k, v in p.link_delay_s.items()}
         jit = p.jitter_s if isinstance(p.jitter_s, dict) else {b: p.jitter_s for b in BLOCKS}
         self.jitter = {b: float(jit.get(b, 0.0)) for b in BLOCKS}
+
+    @classmethod
+    def model_files(cls, params: "EOP.Params") -> dict[str, Path]:
+        """The timing profile these parameters read: a run's manifest records its sha256, so a
+        rerun after the profile was measured again is refused (its rates and latencies changed)."""
+        return {"latency_profile": Path(params.latency_profile)} if params.latency_profile else {}
 
     def _block_profile(self, block: str):
         assert self.profile is not None
