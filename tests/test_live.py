@@ -298,6 +298,26 @@ def test_ctrl_c_stops_a_live_run_promptly(tmp_path):
     assert time.perf_counter() - t0 < 1.0  # a 20 s sequence; the 2 s stretched call is cut
 
 
+def test_ctrl_c_before_the_clock_starts_leaves_no_decoding_thread():
+    """QA pass 14: Ctrl-C during the warm-up left the frame-decoding thread inside OpenCV; at the
+    interpreter's exit that aborted the process (SIGABRT, "terminate called without an active
+    exception") instead of exiting with 130."""
+    import threading
+
+    def slow(k):
+        time.sleep(0.3)   # a frame being decoded when the interrupt comes
+        return np.full((48, 64, 3), k, np.uint8)
+
+    class Interrupted(Tracker):
+        def initialize(self, image, box):
+            raise KeyboardInterrupt
+
+    seq = Sequence("toy", np.tile(INIT.as_array(), (50, 1)), fps=FPS, loader=slow)
+    with pytest.raises(KeyboardInterrupt):
+        run_live(seq, Interrupted([0.0]), warmup=1, prefetch=2)
+    assert not [t for t in threading.enumerate() if t.name == "live-prefetch"]
+
+
 def test_live_params_are_checked_when_the_experiment_is_loaded():
     from mata_eval_plugins.protocols.live import Live
 

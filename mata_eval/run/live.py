@@ -123,9 +123,13 @@ class _Prefetcher:
             return self.images.pop(k)
 
     def close(self) -> None:
+        """Stop decoding and wait for the frame being decoded: a daemon thread still inside
+        OpenCV when the interpreter exits (Ctrl-C before the clock started) aborted the process
+        ("terminate called without an active exception", SIGABRT)."""
         with self.cond:
             self.stop = True
             self.cond.notify_all()
+        self.thread.join()
 
 
 def run_live(
