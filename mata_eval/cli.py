@@ -160,6 +160,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
     checked = _preflight(exp, args.runs, args.debug, args.sequences)
     if checked is None:
         return 2
+    from .run.runner import profile_warnings
+
+    for spec in checked.runs:
+        for line in profile_warnings(spec):
+            print(f"warning: {spec.name}: {line}")
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
                                                           if checked.skipped else ""))
     return 0

@@ -134,3 +134,29 @@ def test_a_rerun_after_the_profile_was_measured_again_is_refused(tmp_path, monke
             in capsys.readouterr().err)
     assert main(run + ["--force"]) == 0
     assert boxes.read_text() != at_5hz   # the new latencies give other held boxes
+
+
+def test_a_profile_measured_with_another_tracker_is_named(tmp_path, monkeypatch, capsys):
+    """QA pass 14: a profile of kcf drove a vittrack run's rate without a word."""
+    import json
+
+    from mata_eval.cli import main
+
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    profile = write_profile(profile_from_samples({"tracker": [0.1, 0.1]}, {"run": {"tracker": {"name": "vittrack"}}}),
+                            tmp_path / "p.json")
+    exp = tmp_path / "exp.yaml"
+    exp.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 12, "
+                   f"width: 160, height: 120}}\ntracker: {{name: kcf}}\nprotocol: {{name: eop, "
+                   f"tracker_hz: profile, latency_profile: {profile}}}\n")
+    line = (f"warning: exp: the tracker rate/latency comes from {profile}, measured with tracker vittrack, not "
+            "this run's kcf: measure one with this run's blocks (mata-eval profile)")
+    assert main(["validate", str(exp)]) == 0
+    assert line in capsys.readouterr().out
+    assert main(["run", str(exp), "-q", "-j", "1", "--no-report"]) == 0
+    assert line in capsys.readouterr().out
+    assert json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())["warnings"] == [
+        line.removeprefix("warning: exp: ")]
+    exp.write_text(exp.read_text().replace("tracker_hz: profile", "tracker_hz: 10"))   # not read from it: nothing
+    assert main(["validate", str(exp)]) == 0
+    assert "warning" not in capsys.readouterr().out

@@ -254,9 +254,29 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
                            tuple(k for k, _ in r.bad_frames))
 
 
+def profile_warnings(spec: RunSpec) -> list[str]:
+    """A line per block whose rate or latency the run draws from a timing profile measured with
+    another plugin (``machine.run`` of the profile: ``mata-eval profile`` records the blocks)."""
+    path = getattr(spec.protocol.params, "latency_profile", None)
+    if not path:
+        return []
+    from .timing_profile import read_profile
+
+    measured = read_profile(path).machine.get("run") or {}
+    out = []
+    for key in ("tracker", "egomotion", "estimator"):
+        uses = "profile" in (getattr(spec.protocol.params, f"{key}_hz", None),
+                             getattr(spec.protocol.params, f"{key}_latency", None))
+        block, was = getattr(spec, key), (measured.get(key) or {}).get("name")
+        if uses and block is not None and was and was != block.name:
+            out.append(f"the {key} rate/latency comes from {path}, measured with {key} {was}, not this run's "
+                       f"{block.name}: measure one with this run's blocks (mata-eval profile)")
+    return out
+
+
 def protocol_warnings(spec: RunSpec) -> list[str]:
     """What the protocol warns about on the camera rates of the run's sequences (e.g. an EOP
-    rate the camera grid cannot give), each message once."""
+    rate the camera grid cannot give) and a timing profile of other blocks, each message once."""
     protocol = spec.protocol.create()
     if not hasattr(protocol, "timing"):  # a protocol that runs the blocks itself (live)
         return []
@@ -264,7 +284,8 @@ def protocol_warnings(spec: RunSpec) -> list[str]:
         warnings.simplefilter("always", RateWarning)
         for fps in sorted({float(s.fps) for s in load_sequences(spec)}):
             protocol.timing(fps)
-    return list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, RateWarning)))
+    rates = [str(w.message) for w in caught if issubclass(w.category, RateWarning)]
+    return list(dict.fromkeys(rates + profile_warnings(spec)))
 
 
 @contextlib.contextmanager
