@@ -73,3 +73,19 @@ def test_a_run_reports_an_off_grid_rate_once_as_a_log_line_not_as_a_python_warni
         warnings.simplefilter("error", RateWarning)
         run_experiment(load_experiment(exp_file), jobs=jobs, progress=False, log=logs.append)
     assert sum("tracker_hz 7 is not 30 fps / n" in line for line in logs) == 1
+
+
+def test_times_of_a_second_or_more_warn_that_times_are_in_seconds():
+    """QA pass 14: `tracker_latency: 100` (meant as ms) ran the tracker at 0.4 Hz without a word."""
+    proto = EOP(EOP.Params(tracker_hz=10, tracker_latency=100, link_delay_s={"tracker->estimator": 4},
+                           jitter_s={"egomotion": 5}))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        proto.timing(30.0)
+    assert [str(w.message) for w in caught if w.category is RateWarning] == [
+        "eop: tracker_latency 100 s: times are in seconds (for 100 ms write 0.1)",
+        "eop: link_delay_s.tracker->estimator 4 s: times are in seconds (for 4 ms write 0.004)",
+        "eop: jitter_s.egomotion 5 s: times are in seconds (for 5 ms write 0.005)"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        EOP(EOP.Params(tracker_hz=10, tracker_latency=0.5, jitter_s=0.01)).timing(30.0)   # plausible: silent

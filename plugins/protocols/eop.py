@@ -193,7 +193,21 @@ class EOP:
             f"use {fps:g} / n Hz ({', '.join(f'{fps / n:.4g}' for n in range(1, 5))}, ...) for a regular rate"))
 
     def timing(self, fps: float) -> Timing:
+        self._warn_long_times()
         return Timing(fps, {b: self.block_timing(b, fps) for b in BLOCKS}, self.links)
+
+    def _warn_long_times(self) -> None:
+        """Times of a second or more are valid (a slow link) but more often milliseconds given
+        as seconds (QA pass: ``tracker_latency: 100`` ran at 0.4 Hz without a word)."""
+        p = self.params
+        given = {f"{b}_latency": getattr(p, f"{b}_latency") for b in BLOCKS}
+        given.update({f"link_delay_s.{k}": v for k, v in p.link_delay_s.items()})
+        given.update({f"jitter_s.{b}": v for b, v in self.jitter.items()} if isinstance(p.jitter_s, dict)
+                     else {"jitter_s": p.jitter_s})
+        for key, value in given.items():
+            if not isinstance(value, str) and value >= 1.0:
+                warnings.warn(RateWarning(f"eop: {key} {value:g} s: times are in seconds (for {value:g} ms "
+                                          f"write {value / 1000:g})"))
 
 
 @hookimpl
