@@ -115,13 +115,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
-               sequences: Sequence[str] | None = None) -> Any:
+               sequences: Sequence[str] | None = None, sequences_flag: str = "--sequences") -> Any:
     """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
     skipped optional run group and per problem (``debug``: raise the first problem's exception,
     with its traceback). Returns the plan, or None when a problem stops the experiment."""
     from .run.preflight import plan, skipped_lines
 
-    checked = plan(exp, only, sequences)
+    checked = plan(exp, only, sequences, sequences_flag)
     if debug and checked.errors:
         raise checked.errors[0]
     for line in skipped_lines(checked.skipped):
@@ -632,7 +632,22 @@ def cmd_profile(args: argparse.Namespace) -> int:
     from .run.scheduler import BlockError
     from .run.timing_profile import write_profile
 
-    exp = load_experiment(args.experiment)
+    out = Path(args.out)   # before minutes of timing (QA pass: a folder failed at the end, naming a temp file)
+    if out.is_dir() or not out.parent.is_dir():
+        what = "is a folder" if out.is_dir() else f"is in {out.parent}, which does not exist"
+        print(f"error: --out {args.out} {what}: give the timing profile file to write (.json, or .yaml)",
+              file=sys.stderr)
+        return 2
+    try:
+        exp = load_experiment(args.experiment)
+    except ConfigError as exc:
+        if "cannot read timing profile" not in str(exc):
+            raise
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
+        print("hint: profile times the blocks only: profile a file whose protocol reads no timing profile "
+              "(e.g. a copy with protocol: {name: ltp}; experiments/live_blocks.yaml for experiments/live.yaml), "
+              "then name the profile it writes as latency_profile", file=sys.stderr)
+        return 2
     if args.run is None:
         if len(exp.runs) > 1:
             names = ", ".join(r.name for r in exp.runs)
@@ -651,7 +666,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
     # the run asked for is profiled or refused, also one marked optional (it would be "skipped")
     spec = dataclasses.replace(spec, optional=False)
     if _preflight(dataclasses.replace(exp, runs=(spec,)), [spec.name], args.debug,
-                  [args.sequence] if args.sequence else None) is None:
+                  [args.sequence] if args.sequence else None, "--sequence") is None:
         return 2
     try:
         profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
@@ -677,15 +692,19 @@ def _time_scales(items: list[str] | None) -> dict[str, float]:
     from .run.scheduler import BLOCKS
 
     out: dict[str, float] = {}
+    given: set[str] = set()
     for item in items or []:
         block, _, value = item.rpartition("=")
         try:
             factor = float(value)
         except ValueError:
             factor = float("nan")
-        if block not in ("",) + BLOCKS or not factor > 0:
-            raise ValueError(f"--time-scale {item!r}: expected FACTOR or BLOCK=FACTOR with a factor > 0 and a "
-                             f"block in {', '.join(BLOCKS)}")
+        if block not in ("",) + BLOCKS or not 1 <= factor < float("inf"):
+            raise ValueError(f"--time-scale {item!r}: expected FACTOR or BLOCK=FACTOR with a factor >= 1 (1 = this "
+                             f"machine, as the live protocol's time_scale) and a block in {', '.join(BLOCKS)}")
+        if block in given:
+            raise ValueError(f"--time-scale {item!r}: {'every block' if not block else block} given twice")
+        given.add(block)
         out.update({b: factor for b in BLOCKS} if not block else {block: factor})
     return out
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from mata_eval.cli import build_parser
+from mata_eval.cli import build_parser, main
 from mata_eval.run.config import load_experiment
 from mata_eval.params import param
 from mata_eval.deploy.profile import back_and_forth, describe_machine, profile_run, time_blocks
@@ -296,9 +296,28 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     prof = read_profile(tmp_path / "p.json")
     assert 0.1 <= prof.block("tracker").percentiles_s((50,))["50"] < 0.175  # 5 x (20 ms + overshoot)
     assert prof.machine["time_scale"] == {"tracker": 5.0}
-    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--time-scale", "camera=2"])
+    for scales, words in ((["camera=2"], "--time-scale 'camera=2': expected FACTOR or BLOCK=FACTOR"),
+                          (["0.5"], "--time-scale '0.5': expected FACTOR or BLOCK=FACTOR with a factor >= 1"),
+                          (["tracker=6", "tracker=3"], "--time-scale 'tracker=3': tracker given twice")):
+        args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json")]
+                                 + [a for v in scales for a in ("--time-scale", v)])
+        assert args.func(args) == 2
+        assert words in capsys.readouterr().err
+    # QA pass 14: a bad --out failed after the timing, naming a temporary file; profile of a file
+    # whose eop reads the profile it is to write; --sequence named as --sequences
+    for out, words in ((tmp_path, f"--out {tmp_path} is a folder: give the timing profile file to write"),
+                       (tmp_path / "no" / "p.json", f"is in {tmp_path / 'no'}, which does not exist")):
+        assert main(["profile", str(path), "--out", str(out)]) == 2
+        assert words in capsys.readouterr().err
+    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--sequence", "nope"])
     assert args.func(args) == 2
-    assert "--time-scale 'camera=2': expected FACTOR or BLOCK=FACTOR" in capsys.readouterr().err
+    assert "unknown sequence name(s) nope (--sequence, or sequences= in Python)" in capsys.readouterr().err
+    path.write_text(path.read_text().replace("{name: eop}", f"{{name: eop, tracker_hz: profile, "
+                                                            f"latency_profile: {tmp_path / 'new.json'}}}"))
+    args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "new.json")])
+    assert args.func(args) == 2
+    err = capsys.readouterr().err
+    assert "cannot read timing profile" in err and "hint: profile times the blocks only" in err
 
 
 def test_profile_checks_what_validate_and_run_check_first(tmp_path, capsys, monkeypatch):

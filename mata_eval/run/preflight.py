@@ -118,13 +118,13 @@ def find_problems(runs: Iterable[RunSpec], sequences: Iterable[str] | None = Non
             for (what, _), (error, names) in checked.items() if error is not None]
 
 
-def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str]) -> str:
-    """The problem of ``--sequences`` names that are in no dataset of the selected runs."""
-    return (f"unknown sequence name(s) {', '.join(sorted(unknown))} (--sequences, or sequences= in Python); "
+def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str], flag: str = "--sequences") -> str:
+    """The problem of ``--sequences`` (``flag``) names that are in no dataset of the selected runs."""
+    return (f"unknown sequence name(s) {', '.join(sorted(unknown))} ({flag}, or sequences= in Python); "
             f"the sequences are: {', '.join(sorted(known))}")
 
 
-def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str]) -> str | None:
+def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str], flag: str) -> str | None:
     """:func:`unknown_sequences_line` for ``sequences`` outside every dataset of ``specs``, or None.
     A generated dataset (``check()``: built on first use) is asked for its ``sequence_names()``
     (without one, or when a dataset cannot be read, its own problem, nothing is said here: the
@@ -143,7 +143,7 @@ def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str]) -> st
         except Exception:
             return None
     unknown = set(sequences) - known
-    return unknown_sequences_line(unknown, known) if unknown else None
+    return unknown_sequences_line(unknown, known, flag) if unknown else None
 
 
 def _runs_text(names: tuple[str, ...], n_all: int) -> str:
@@ -153,17 +153,18 @@ def _runs_text(names: tuple[str, ...], n_all: int) -> str:
     return f"run{'s' if len(names) > 1 else ''} {shown}"
 
 
-def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable[str] | None = None) -> Plan:
+def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable[str] | None = None,
+         sequences_flag: str = "--sequences") -> Plan:
     """Check the selected runs (``only``: run names; default all) over the selected sequences
-    (``sequences``: names; default all) and sort them into runs to do, optional runs to skip,
-    and problems that stop the experiment."""
+    (``sequences``: names, given as ``sequences_flag``; default all) and sort them into runs to do,
+    optional runs to skip, and problems that stop the experiment."""
     only = list(only or [])
     known = {r.name for r in exp.runs}
     unknown = [n for n in only if n not in known]
     if unknown:
         return Plan((), (), (f"unknown run name(s) {', '.join(unknown)}; runs: {', '.join(sorted(known))}",))
     specs = [r for r in exp.runs if not only or r.name in only]
-    if sequences and (line := _unknown_sequences(specs, sequences)):
+    if sequences and (line := _unknown_sequences(specs, sequences, sequences_flag)):
         return Plan((), (), (line,))
     problems = find_problems(specs, sequences)
     by_name = {r.name: r for r in specs}
