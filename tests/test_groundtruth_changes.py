@@ -246,3 +246,22 @@ def test_a_sequence_unscorable_on_a_broken_annotation_file_is_scored_once_the_fi
     assert main(["report", str(run)]) == 0
     out = capsys.readouterr().out
     assert "cannot score" not in out and _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
+
+
+def test_report_scores_again_a_result_file_edited_or_cut_since_its_scores_were_written(workdir, capsys):
+    """QA pass 14: report kept showing the old numbers after a prediction file was edited or
+    truncated (only the set of finished sequences was compared), while eval and run disagreed."""
+    run = workdir / "out" / "exp"
+    assert main(["report", str(run)]) == 0
+    assert _sr(run) == {"overall": 1.0, "a": 1.0, "b": 1.0}
+    (run / "b.txt").write_text(MOVED * N)                       # edited: 200 px off
+    capsys.readouterr()
+    assert main(["report", str(run)]) == 0
+    assert f"{run}: scored again: the result files of b changed since its scores.json was written" in \
+        capsys.readouterr().err
+    assert _sr(run) == {"overall": 0.5, "a": 1.0, "b": 0.0}
+    (run / "b.txt").write_text(BOX * (N - 1))                   # cut short
+    assert main(["report", str(run)]) == 0
+    assert "cannot score exp/b" in capsys.readouterr().out
+    assert main(["report", str(run)]) == 0                      # unchanged since: trusted
+    assert "scored again" not in capsys.readouterr().err

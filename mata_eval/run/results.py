@@ -254,6 +254,16 @@ def _sha256(path: str, size: int, mtime_ns: int) -> str:
     return digest.hexdigest()
 
 
+def results_sha256(run_dir: str | Path, seq: str) -> str:
+    """sha256 of what scoring reads of a sequence's results: ``<seq>.txt`` and, when present,
+    ``<seq>.frames.csv`` (its scored column)."""
+    digest = hashlib.sha256(Path(inside(run_dir, seq, ".txt")).read_bytes())
+    frames = Path(inside(run_dir, seq, ".frames.csv"))
+    if frames.is_file():
+        digest.update(b"frames" + frames.read_bytes())
+    return digest.hexdigest()
+
+
 def groundtruth_sha256(seq: Sequence) -> str:
     """sha256 of a sequence's annotations as scoring reads them: every ground-truth box as
     float64, the ``annotated`` mask and the ``init`` box when it has them."""

@@ -368,6 +368,9 @@ def evaluate_results(
         "groundtruth": {s.name: results.groundtruth_sha256(s) for s in sequences
                         if s.name in per_seq or s.name in unscorable},
         # sequences whose tracker results were made on other ground truth (the manifest's record)
+        # the result files scored (a report scores the run again when one was edited since)
+        "results_sha256": {k: results.results_sha256(d, k) for k in list(per_seq) + list(unscorable)
+                           if (d / f"{k}.txt").is_file()} if layout == "mata" else {},
         "other_groundtruth": results.changed_groundtruth(manifest.get(results.RUN_INPUTS), scored, functools.partial(
             results.run_input_sha256, occluded=(manifest.get("config") or {}).get("occlusion") is not None)),
     }
@@ -409,7 +412,7 @@ def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "d
 def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     """Why the scores read from a run folder's scores.json no longer describe its results
     (sequences finished or failed after they were written: a report made while a run was
-    writing the folder), or None."""
+    writing the folder; a result file edited, truncated or copied over since), or None."""
     d = Path(run_dir)
     finished = {p.stem for p in d.glob("*.txt")}
     unscorable = set(scores.meta.get("unscorable") or ())
@@ -419,6 +422,10 @@ def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     failed = set(results.read_failures(d))
     if failed != set(scores.failures) - unscorable:
         return f"it lists {len(set(scores.failures) - unscorable)} failed sequence(s), the folder {len(failed)}"
+    recorded = scores.meta.get("results_sha256") or {}   # (none: an older mata-eval; not compared)
+    edited = [k for k, sha in recorded.items() if k in finished and results.results_sha256(d, k) != sha]
+    if edited:
+        return f"the result files of {', '.join(edited[:5])}{' ...' if len(edited) > 5 else ''} changed since"
     return None
 
 
@@ -472,6 +479,8 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
         changed = changed_since_scored(scores, d, manifest) if stale is None and manifest is not None else []
         if stale is None and not changed:
             return scores
+        if stale and stale.startswith("the result files"):
+            log(f"{d}: scored again: {stale} its {SCORES} was written")
         if changed:
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
                 f"{' ...' if len(changed) > 5 else ''} differ from the ones its {SCORES} was scored on")
