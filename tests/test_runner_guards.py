@@ -269,6 +269,15 @@ def test_every_block_with_a_close_method_is_closed_after_its_sequence(tmp_path, 
     capfd.readouterr()
     outcomes = run_experiment(load_experiment(p, registry), jobs=1, force=True, **QUIET)
     err = capfd.readouterr().err   # one line each (review: a warning showing contextlib's source line)
-    assert err.splitlines() == ["warning: egomotion qa_closing_bad:BadEgo: close() raised OSError: device gone"] * 4
+    assert sorted(err.splitlines()) == [f"warning: egomotion qa_closing_bad:BadEgo (run bad, sequence {seq}): close() "
+                                        "raised OSError: device gone" for seq in sorted(_statuses(outcomes))]
     assert {(o.run, o.status) for o in outcomes} == {("none", "done"), ("bad", "done")}
     assert len(outcomes) == 8
+    # one that hangs is given up after timeout_s (QA pass 14: the run waited forever, the
+    # sequence's results unwritten)
+    (tmp_path / "qa_closing_hang.py").write_text(
+        "import time\nfrom qa_closing import Ego\nclass HangEgo(Ego):\n    def close(self):\n        time.sleep(600)\n")
+    p = _write(tmp_path, extra="timeout_s: 0.2\negomotion: {name: 'qa_closing_hang:HangEgo'}\n")
+    outcomes = run_experiment(load_experiment(p, registry), jobs=1, force=True, **QUIET)
+    assert set(_statuses(outcomes).values()) == {"done"} and len(outcomes) == 4
+    assert capfd.readouterr().err.count("close() did not return within 0.2 s (timeout_s)") == 4

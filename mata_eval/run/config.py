@@ -87,10 +87,13 @@ class PluginBlock:
         return self.cls(self.params)
 
     @contextlib.contextmanager
-    def instance(self) -> Iterator[Any]:
+    def instance(self, timeout_s: float | None = None, where: str = "") -> Iterator[Any]:
         """A fresh instance whose ``close()``, if the plugin has one (a tracker process, a
         device), runs when the ``with`` block ends, however it ends; a ``close()`` that raises
-        is a warning naming the plugin (the results it made stand, the other runs go on)."""
+        or does not return within ``timeout_s`` (main thread) is a line on stderr naming the
+        plugin and ``where`` (the results it made stand, the other runs go on)."""
+        from .scheduler import CallAlarm, CallTimeout
+
         obj = self.create()
         try:
             yield obj
@@ -98,10 +101,10 @@ class PluginBlock:
             close = getattr(obj, "close", None)
             if callable(close):
                 try:
-                    close()
-                except Exception as exc:   # one line (a warning showed contextlib's source line)
-                    print(f"warning: {self.kind} {self.name}: close() raised {type(exc).__name__}: {exc}",
-                          file=sys.stderr, flush=True)
+                    CallAlarm(timeout_s).call(close)
+                except (Exception, CallTimeout) as exc:   # one line (a warning showed contextlib's source line)
+                    why = str(exc) if isinstance(exc, CallTimeout) else f"raised {type(exc).__name__}: {exc}"
+                    print(f"warning: {self.kind} {self.name}{where}: close() {why}", file=sys.stderr, flush=True)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -488,7 +488,7 @@ def sequence_steps(
             boards[b].post(value, t_start, k, t_start)
         return t_pub
 
-    alarm = _CallAlarm(call_timeout_s)
+    alarm = CallAlarm(call_timeout_s)
     for k in range(n):
         yield k
         tk = k / fps
@@ -631,7 +631,7 @@ def _take(board: _Board, consumed: dict, name: str, t: float, delay: float) -> l
 _DIAGNOSTICS_KEY = re.compile(r"[A-Za-z0-9_]+")
 
 
-def _diagnostics(alarm: "_CallAlarm", estimator: Any, k: int, t: float) -> dict[str, float]:
+def _diagnostics(alarm: "CallAlarm", estimator: Any, k: int, t: float) -> dict[str, float]:
     """The estimator's ``diagnostics()``, checked: a dict of str (letters, digits, _: a frames.csv
     column name) -> number (a bool is 0 / 1); anything else is a :class:`BlockError` naming the
     estimator and the key."""
@@ -659,7 +659,7 @@ class CallTimeout(BaseException):
     does not swallow it)."""
 
 
-class _CallAlarm:
+class CallAlarm:
     """Time limit of one block call: a ``SIGALRM`` timer armed around each call. It interrupts
     Python code and sleeps (not native code that never returns to the interpreter); only in the
     main thread, where every worker runs its sequences, and a no-op elsewhere or for None."""
@@ -683,7 +683,7 @@ class _CallAlarm:
             signal.signal(signal.SIGALRM, previous)
 
 
-def _call(alarm: _CallAlarm, block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
+def _call(alarm: CallAlarm, block: str, k: int, t: float, fn: Callable, *args: Any) -> Any:
     """Call a block; whatever it raises, SystemExit and KeyboardInterrupt included, or a time
     out, fails the sequence as a :class:`BlockError` (a stop of the run passes through)."""
     try:

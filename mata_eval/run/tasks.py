@@ -171,9 +171,12 @@ def shared(seq: Sequence) -> Sequence:
     return dataclasses.replace(seq, loader=LastFrame(seq.image))
 
 
-def _enter(closing: contextlib.ExitStack, block: PluginBlock | None) -> Any:
-    """A fresh instance of ``block`` (None for none), closed when ``closing`` ends."""
-    return None if block is None else closing.enter_context(block.instance())
+def _enter(closing: contextlib.ExitStack, block: PluginBlock | None, spec: RunSpec, seq: str) -> Any:
+    """A fresh instance of ``block`` (None for none), closed when ``closing`` ends (within the
+    run's ``timeout_s``: a close() that hangs would hold the sequence's results forever)."""
+    if block is None:
+        return None
+    return closing.enter_context(block.instance(spec.timeout_s, f" (run {spec.name}, sequence {seq})"))
 
 
 def _failure(run: str, seq: str, exc: Exception) -> SequenceResult:
@@ -212,7 +215,8 @@ def _lockstep(specs: dict[str, RunSpec], task: Task, base: Sequence,
             if view not in views:
                 seq = as_run_sees_it(base, spec)
                 views[view] = shared(seq) if share and seq is not base else seq
-            blocks = (_enter(closing, spec.tracker), _enter(closing, spec.egomotion), _enter(closing, spec.estimator))
+            blocks = tuple(_enter(closing, block, spec, task.sequence)
+                           for block in (spec.tracker, spec.egomotion, spec.estimator))
             protocol = spec.protocol.create()
             rng = sequence_seed(spec.seed, base.name)
             if hasattr(protocol, "run_sequence"):  # a protocol that runs the blocks itself (live)
