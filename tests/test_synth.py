@@ -485,3 +485,36 @@ def test_motion_is_validated_and_keys_the_cache(tmp_path, monkeypatch):
     assert default.params.motion == "uav123" and default.root != legacy.root
     with pytest.raises(ConfigError, match="motion"):
         build_params(SyntheticDataset.Params, {"motion": "v3"})
+
+
+def test_a_killed_generation_leaves_no_worker_and_its_folder_is_removed_by_the_next(tmp_path):
+    """QA pass 14: `kill -9` during the suite's generation left its spawned workers rendering
+    (reparented to init) and a 100+ MB temporary folder that no later generation removed."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from test_stop import _alive, _children, _wait_for
+
+    root = tmp_path / "suite"
+    script = (f"from mata_eval.data import synth\n"
+              f"synth.write_suite({str(root)!r}, n_sequences=4, n_frames=400, width=320, height=240, jobs=2)\n")
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    try:
+        assert _wait_for(lambda: len(_children(proc.pid)) >= 3, 60)   # the two workers and the resource tracker
+        assert _wait_for(lambda: any((tmp_path).glob(".suite.tmp-*")), 30)
+        children = _children(proc.pid)
+        time.sleep(0.5)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+        assert _wait_for(lambda: not any(_alive(c) for c in children), 10), "a worker outlived its parent"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    left = list(tmp_path.glob(".suite.tmp-*"))
+    assert len(left) == 1
+    alive = tmp_path / f".suite.tmp-{os.getpid()}-1"   # a generation still running: kept
+    alive.mkdir()
+    synth.write_suite(root, specs=synth.suite_specs(1, 3, W, H), jobs=1)
+    assert not left[0].exists() and alive.exists()

@@ -73,11 +73,11 @@ def _local_worker(parent: int | None) -> None:
     None under ``forkserver``, whose server process ends with the driver)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    _die_with_parent(parent)
+    die_with_parent(parent)
     one_thread_per_process()
 
 
-def _die_with_parent(parent: int | None) -> None:
+def die_with_parent(parent: int | None) -> None:
     """Linux: ask the kernel to SIGKILL this process when its parent ends, even by ``kill -9``
     (``prctl(PR_SET_PDEATHSIG)``; no library wraps it, and polling the parent cannot interrupt
     a block that is running). A parent that ended before the request: exit now. Elsewhere a

@@ -105,6 +105,7 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
     if root.exists() and any(root.iterdir()) and not (root / SUITE_MARKER).exists():
         raise FileExistsError(f"{root} exists and is not empty (and is not a synthetic suite); refusing to replace it")
     root.parent.mkdir(parents=True, exist_ok=True)
+    _remove_abandoned(root)
     tmp = root.parent / f".{root.name}.tmp-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir()
     try:
@@ -133,6 +134,21 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
     return names
+
+
+def _remove_abandoned(root: Path) -> None:
+    """Delete the temporary folders of ``root`` left by a generating process that no longer
+    exists (killed: ``kill -9`` skips the cleanup; each held 100+ MB of frames)."""
+    for old in root.parent.glob(f".{root.name}.tmp-*-*"):
+        pid = old.name.rsplit("-", 2)[-2]
+        if not pid.isdigit():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(old, ignore_errors=True)
+        except PermissionError:   # alive, another user's
+            pass
 
 
 def read_suite_info(root: str | Path) -> dict | None:
@@ -172,8 +188,12 @@ def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
             return out
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
+        from ...run.executors import die_with_parent
+
         runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn")) as ex:
+        # the workers end with this process, even when it is killed (kill -9 left them rendering)
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
+                                 initializer=die_with_parent, initargs=(os.getpid(),)) as ex:
             futures = {ex.submit(runner, [tasks[i] for i in idx]): idx for idx in groups.values()}
             for fut in as_completed(futures):
                 for i, r in zip(futures[fut], fut.result()):
