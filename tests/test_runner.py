@@ -401,6 +401,38 @@ def test_a_write_error_stops_the_run_at_once_naming_the_file(tmp_path, monkeypat
     assert outcomes.pop(written[0]) == "skipped" and "skipped" not in outcomes.values()
 
 
+def test_a_full_disk_at_the_manifest_or_the_scores_names_the_file_and_keeps_the_table(tmp_path, monkeypatch):
+    """QA pass 14: a disk full when the manifest was rewritten, or when scores.json was saved,
+    was a bare "[Errno 28] No space left on device" (no file named), and the latter lost the
+    table although every sequence had been scored."""
+    import errno
+
+    from mata_eval.run.runner import CannotWrite, load_sequences
+    from mata_eval.score.evaluate import evaluate_run
+
+    exp = _exp(tmp_path)
+    run = tmp_path / "out" / "exp"
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    replace = os.replace
+
+    def disk_full_for(name):
+        def refuse(src, dst):
+            if os.path.basename(dst) == name:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(src))
+            return replace(src, dst)
+        return refuse
+
+    monkeypatch.setattr(os, "replace", disk_full_for("manifest.json"))
+    with pytest.raises(CannotWrite, match=re.escape(f"cannot write {run / 'manifest.json'}: No space left on device; "
+                                                    "nothing ran")):
+        run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    monkeypatch.setattr(os, "replace", disk_full_for("scores.json"))
+    (run / "scores.json").unlink(missing_ok=True)
+    scores = evaluate_run(run, load_sequences(exp.runs[0]))
+    assert set(scores.sequences) == {"good", "nan"}
+    assert scores.meta["unsaved"].startswith(f"cannot write {run / 'scores.json'}: No space left on device; the table")
+
+
 def test_a_file_of_one_sequence_that_cannot_be_written_fails_that_sequence_only(tmp_path, monkeypatch):
     """Review: a name the file system refuses (ENAMETOOLONG below NAME_MAX on eCryptfs, EINVAL
     for ':' on exFAT) is one sequence's problem: it fails, the others run (it stopped the run,

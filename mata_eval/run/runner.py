@@ -204,6 +204,15 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
                                   f"or change `output` in {exp.path}")
         results.clear_run(out)
     inputs[results.RUN_INPUTS] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
+    try:
+        _write_manifest(out, exp, spec, inputs, notes)
+    except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
+        raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran (the results "
+                          "there stay: free space or make the folder writable, then rerun)") from exc
+    return out
+
+
+def _write_manifest(out: Path, exp: Experiment, spec: RunSpec, inputs: dict, notes: list[str]) -> None:
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(Path(exp.path).resolve()),
@@ -223,7 +232,6 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
         "git_commit": results.git_commit(),
         "machine": results.machine(),
     })
-    return out
 
 
 def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:

@@ -405,7 +405,12 @@ def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "d
     if busy or being_written(run_dir):
         return dataclasses.replace(scores, meta={**scores.meta, "unsaved": BEING_WRITTEN})
     if save:
-        save_scores(run_dir, scores)
+        try:
+            save_scores(run_dir, scores)
+        except OSError as exc:   # disk full, read-only: the table is still printed (was a bare Errno, no table)
+            return dataclasses.replace(scores, meta={**scores.meta, "unsaved": (
+                f"cannot write {Path(run_dir) / SCORES}: {exc.strerror or exc}; the table above is not saved "
+                "(free space or make the folder writable, then `mata-eval report` this folder)")})
     return scores
 
 
