@@ -103,15 +103,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     for s in scores:
         occ = s.summary.occluded_frames
         if occ is not None:
-            print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} sequences: "
+            print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} "
+                  f"sequence{'s' if occ.n_sequences != 1 else ''}: "
                   f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
     plots = plot_curves(scores, exp.output / REPORT_FOLDER)
     for p in plots:
         print(f"plot: {p}")
-    if failed:
-        print(f"{len(failed)} sequence(s) failed (FAILED lines above say why); see <run>/<sequence>.failed.json")
-    unscorable = _print_unscorable(scores)
-    return 1 if failed or unscorable else 0
+    _print_incomplete(scores)   # failed, unscorable, without results (--sequences), ...
+    return 1 if failed or any(s.meta.get("unscorable") for s in scores) else 0
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
@@ -302,24 +301,18 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(render_table(all_scores, "terminal", table="challenges"))
     if args.attributes:
         print(render_table(all_scores, "terminal", table="attributes"))
-    _print_incomplete(all_scores)
-    for scores in all_scores:
-        where = f" in {scores.path}" if len(all_scores) > 1 else ""
-        if scores.meta.get("unmatched_results"):
-            un = scores.meta["unmatched_results"]
-            print(f"{len(un)} result file(s){where} match no sequence of {args.dataset}: {', '.join(un[:10])}"
-                  + (" ..." if len(un) > 10 else ""))
+    _print_incomplete(all_scores, args.dataset)
     if bad:
         return 2
     return 0 if all(s.sequences for s in all_scores) else 1
 
 
-def _print_incomplete(runs: Sequence) -> None:
+def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     """After a table: the sequences each scored run has no results for (an interrupted run, a
-    results folder short of the dataset; its row averages only the others), the frames it
-    skipped as unreadable (``on_bad_frame: skip``: not scored), the sequences run on other ground
-    truth than they are scored on, and rows scored under different metric profiles (their numbers
-    do not compare)."""
+    results folder short of the dataset; its row averages only the others), its results of no
+    sequence of the ``dataset`` (a sequence removed since), the frames it skipped as unreadable
+    (``on_bad_frame: skip``: not scored), the sequences run on other ground truth than they are
+    scored on, and rows scored under different metric profiles (their numbers do not compare)."""
     profiles: dict[str, list[str]] = {}
     for scores in runs:
         profiles.setdefault(scores.profile, []).append(scores.name)
@@ -338,6 +331,10 @@ def _print_incomplete(runs: Sequence) -> None:
         if scores.missing:
             print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
                   + (" ..." if len(scores.missing) > 10 else ""))
+        un = scores.meta.get("unmatched_results") or []
+        if un:
+            print(f"{len(un)} result file(s){where} match no sequence of {dataset or scores.meta.get('dataset')}: "
+                  f"{', '.join(un[:10])}" + (" ..." if len(un) > 10 else "") + " (not in the table)")
         other = scores.meta.get("other_groundtruth") or []
         if other:
             print(f"{len(other)} sequence(s){where} were run on other ground truth than they are scored on here (their "
@@ -441,7 +438,10 @@ def cmd_paper(args: argparse.Namespace) -> int:
         plan: list[tuple[str, list[str]]] = []
         generic: list[str] = []  # run folders of experiments that are not one of the paper's tables
         for exp_file in args.experiment or []:
-            name, dirs = experiment_runs(exp_file)
+            name, dirs, not_run = experiment_runs(exp_file)
+            if not_run:   # (QA pass: the table went without them, and said nothing)
+                print(f"{exp_file}: {len(not_run)} of {len(not_run) + len(dirs)} runs have no results yet, not in "
+                      f"the report: {', '.join(not_run[:6])}{' ...' if len(not_run) > 6 else ''}", file=sys.stderr)
             kind = name if args.paper == "auto" else args.paper
             if kind in PAPER_TABLES:
                 plan.append((kind, dirs))

@@ -265,3 +265,20 @@ def test_report_scores_again_a_result_file_edited_or_cut_since_its_scores_were_w
     assert "cannot score exp/b" in capsys.readouterr().out
     assert main(["report", str(run)]) == 0                      # unchanged since: trusted
     assert "scored again" not in capsys.readouterr().err
+
+
+def test_run_and_report_name_sequences_left_out_and_results_of_a_removed_sequence(tmp_path, workdir, capsys):
+    """QA pass 14: run's table did not say which sequences --sequences left without results, and
+    the results of a sequence removed from the dataset left the run and report tables silently."""
+    import shutil
+
+    shutil.rmtree(workdir / "out")
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--sequences", "a"]) == 0
+    assert "1 sequence(s) without results: b" in capsys.readouterr().out
+    assert main(["run", "exp.yaml", "-q", "-j", "1"]) == 0
+    (workdir / "data" / "b").rename(tmp_path / "b.away")
+    capsys.readouterr()
+    for command in (["run", "exp.yaml", "-q", "-j", "1"], ["report", str(workdir / "out" / "exp")]):
+        assert main(command) == 0
+        assert "1 result file(s) match no sequence of folder: b (not in the table)" in capsys.readouterr().out

@@ -467,7 +467,7 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
     for r in runs:  # a mean over fewer sequences must not pass unnoticed
         if r.scores.failures or r.scores.missing:
             t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
-                           f"sequence(s) are not in its means ({r.scores.summary.overall.n_sequences} sequences)")
+                           f"sequence(s) are not in its means (of {r.scores.summary.overall.n_sequences})")
     return t
 
 
@@ -529,8 +529,9 @@ def write_paper_report(sections: Sequence[tuple[str, Sequence[PlacedRun]]], out:
     return written
 
 
-def experiment_runs(path: str) -> tuple[str, list[str]]:
-    """(experiment name, its run folders that exist) of an experiment file."""
+def experiment_runs(path: str) -> tuple[str, list[str], list[str]]:
+    """(experiment name, its run folders that exist, the names of its runs without one) of an
+    experiment file."""
     from ..run.config import load_experiment
 
     exp = load_experiment(path)
@@ -538,4 +539,4 @@ def experiment_runs(path: str) -> tuple[str, list[str]]:
     if not dirs:
         raise FileNotFoundError(f"{path}: none of its {len(exp.runs)} run folders exists under {exp.output}; "
                                 f"run `mata-eval run {path}` first")
-    return exp.name, dirs
+    return exp.name, dirs, [r.name for r in exp.runs if not (exp.output / r.name).is_dir()]
