@@ -82,7 +82,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     checked = _preflight(exp, args.runs, args.debug, args.sequences)
     if checked is None:   # (before the header: it would announce runs that do not exist)
         return 2
-    count = f"{len(set(args.runs))} of {len(exp.runs)}" if args.runs else str(len(exp.runs))
+    n = len(checked.runs)   # (optional runs skipped are not counted)
+    count = str(n) if n == len(exp.runs) else f"{n} of {len(exp.runs)}"
     print(f"experiment {exp.name} ({exp.path}): {count} run(s) -> {exp.output}", flush=True)
     names = [r.name for r in checked.runs]
     outcomes = run_experiment(exp, jobs=args.jobs, force=args.force, only=names, sequences=args.sequences,

@@ -147,7 +147,7 @@ def test_one_sequence_that_cannot_run_is_named_and_sequences_runs_the_others(tmp
     assert last.startswith("mata-eval augment: ") and ("ground-truth lines" in last or "only the annotations" in last)
 
 
-def test_optional_runs_are_skipped_with_a_line(tmp_path):
+def test_optional_runs_are_skipped_with_a_line(tmp_path, capsys):
     root = _folder_dataset(tmp_path / "data")
     exp = load_experiment(_write(tmp_path, f"""
         dataset: {{name: folder, root: {root}}}
@@ -166,6 +166,10 @@ def test_optional_runs_are_skipped_with_a_line(tmp_path):
     assert [r.name for r in checked.runs] == ["kcf-ltp", "kcf-eop10"]
     (line,) = skipped_lines(checked.skipped)
     assert line.startswith("skipping the 2 'vit' runs: tracker vittrack: ") and "missing.onnx" in line
+    # the header counts the runs that go (QA pass 14: "4 run(s)" with 2 of them skipped)
+    (tmp_path / "exp.yaml").write_text((tmp_path / "exp.yaml").read_text() + f"output: {tmp_path / 'out'}\n")
+    assert main(["run", str(tmp_path / "exp.yaml"), "-q", "-j", "1", "--no-report", "--sequences", "square"]) == 0
+    assert f"experiment exp ({tmp_path / 'exp.yaml'}): 2 of 4 run(s) -> {tmp_path / 'out'}" in capsys.readouterr().out
 
 
 def test_optional_names_matrix_labels(tmp_path):
