@@ -404,7 +404,7 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
             else:
                 pending.append((spec, i, seq))
     if outcomes:
-        log(f"{len(outcomes)} finished sequence(s) kept from an earlier run (use --force to redo them)")
+        log(f"{len(outcomes)} finished sequence(s) kept from an earlier run (--force, or force=True in Python, redoes them)")
 
     by_name = {spec.name: spec for spec in specs}
     bar = tqdm(total=len(pending), desc=exp.name, unit="seq", disable=not progress or not pending)
