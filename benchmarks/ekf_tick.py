@@ -135,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
             ref_us += per_tick_us(filterpy, args.n, 1)
         ratio = np.array(ref_us) / np.array(ours_us)
         print(setup + f"{args.n} ticks x {args.repeat} runs, CPU time, one thread; "
-                      f"filter built in {first_call_s * 1e3:.0f} ms (numba: cache load or compile)")
+                      f"filter built in {first_call_s * 1e3:.0f} ms"
+                      + (" (numba: cache load or compile)" if backend == "numba" else ""))
         ratio_line = (f"ratio filterpy / ours  min {ratio.min():.2f}  median {np.median(ratio):.2f}   "
                       "(target >= 3, tick <= 20 us)")
     print(f"  filterpy predict + 9-value + 4-value update (anchor)  us  min {min(ref_us):7.1f}  median {np.median(ref_us):7.1f}")
