@@ -906,7 +906,7 @@ def _add_export(subparsers) -> None:
                     "the tolerance. Writes export.json beside the graphs.")
     p.add_argument("model", choices=("nanotrack", "mixformerv2", "ostrack"))
     p.add_argument("--checkpoint", help="weights: nanotrackv2.pth, mixformerv2_small.pth.tar, OSTrack_ep0300.pth.tar "
-                                        "(MixFormerV2 and OSTrack: or the folder holding it; default: the tracker's "
+                                        "(or the folder holding it; MixFormerV2 and OSTrack default to the tracker's "
                                         "environment variable, $MATA_MIXFORMERV2_S / _B, $MATA_OSTRACK)")
     p.add_argument("--random-weights", action="store_true", help="seeded random weights (pipeline tests and timing only)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random weights and of the parity inputs")

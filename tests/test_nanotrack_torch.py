@@ -68,6 +68,17 @@ def test_wrong_file_is_named(tmp_path):
         nt.load_nanotrack_v2(tmp_path / "missing.pth")
 
 
+
+def test_an_onnx_graph_or_a_folder_as_the_checkpoint(paths):
+    """QA pass 14: an ONNX graph given as the checkpoint was told to retry with --trust-pickle,
+    also when it had; the folder holding nanotrackv2.pth was "not found"."""
+    for trust in (False, True):
+        with pytest.raises(ValueError, match=r"nanotrack_backbone_sim.onnx: not a PyTorch checkpoint \(.*\); expected "
+                                             r"nanotrackv2.pth from .* named as the nanotrack tracker's backbone: and head:"):
+            nt.read_checkpoint(paths["backbone"], trust_pickle=trust)
+    assert len(nt.read_checkpoint(paths["pth"].parent)) == 298
+
+
 def test_random_weights_are_seeded():
     a = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
     b = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()

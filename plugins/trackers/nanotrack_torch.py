@@ -242,6 +242,8 @@ def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, t
     optimizer}``, or a bare state_dict). Weights-only unpickling with the numpy scalar/dtype
     globals allowed; ``trust_pickle`` is the explicit opt-in to full unpickling."""
     path = Path(path)
+    if path.is_dir() and (path / "nanotrackv2.pth").is_file():   # the folder holding it, as for the ViT trackers
+        path = path / "nanotrackv2.pth"
     if not path.is_file():
         raise FileNotFoundError(f"NanoTrack checkpoint not found: {path} (expected nanotrackv2.pth from {SOURCE})")
     import pickle
@@ -252,11 +254,15 @@ def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, t
         else:
             with torch.serialization.safe_globals(_numpy_safe_globals()):
                 obj = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
+    except Exception as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, export "
-                         "it with `mata-eval export nanotrack --checkpoint FILE --trust-pickle` and use the "
-                         "ONNX pair (the nanotrack tracker's torch backend loads weights only)") from exc
+        if isinstance(exc, pickle.UnpicklingError) and "Unsupported global" in first and not trust_pickle:
+            raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, export "
+                             "it with `mata-eval export nanotrack --checkpoint FILE --trust-pickle` and use the "
+                             "ONNX pair (the nanotrack tracker's torch backend loads weights only)") from exc
+        # (QA pass: an ONNX graph was told to retry with --trust-pickle, which it had)
+        raise ValueError(f"{path}: not a PyTorch checkpoint ({first}); expected nanotrackv2.pth from {SOURCE} "
+                         "(an ONNX pair is named as the nanotrack tracker's backbone: and head:)") from exc
     sd = obj.get("state_dict", obj) if isinstance(obj, dict) else None
     if not isinstance(sd, dict) or not all(isinstance(v, torch.Tensor) for v in sd.values()):
         raise ValueError(f"{path}: expected a dict with 'state_dict' (tensors) or a bare state_dict")
