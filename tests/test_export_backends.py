@@ -211,3 +211,15 @@ def test_export_reads_the_checkpoint_as_the_tracker_does(tmp_path, monkeypatch, 
     monkeypatch.setenv("MATA_OSTRACK", str(ck))
     args = parser.parse_args(["export", "ostrack", "--out", str(tmp_path / "b")])
     assert args.func(args) == 0 and json.loads((tmp_path / "b" / "export.json").read_text())["checkpoint"] == str(ck)
+
+
+def test_a_gpu_device_without_the_gpu_onnxruntime_says_what_to_install():
+    """QA pass 14: the error named the missing provider and stopped there."""
+    ort = pytest.importorskip("onnxruntime")
+    from mata_eval_plugins.trackers.backends import BackendUnavailable, check_backend
+
+    if "CUDAExecutionProvider" in ort.get_available_providers():
+        pytest.skip("this onnxruntime has CUDA")
+    with pytest.raises(BackendUnavailable, match=r"device 'cuda' needs CUDAExecutionProvider, but this onnxruntime "
+                                                 r"offers only .*: install onnxruntime-gpu .* or use device: cpu"):
+        check_backend("onnxruntime", "cuda")

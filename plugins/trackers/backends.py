@@ -151,7 +151,8 @@ def _ort_providers(device: Device) -> list[str]:
     wanted = _ORT_PROVIDERS[device]
     if wanted[0] not in available:
         raise BackendUnavailable(f"device {device!r} needs {wanted[0]}, but this onnxruntime offers only "
-                                 f"{', '.join(available)}")
+                                 f"{', '.join(available)}: install onnxruntime-gpu in place of onnxruntime (on a "
+                                 "Jetson, the wheel of its JetPack, docs/jetson.md), or use device: cpu")
     return [p for p in wanted if p in available]
 
 
