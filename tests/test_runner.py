@@ -581,3 +581,8 @@ def test_a_refused_configuration_change_says_what_changed(tmp_path):
     changed = _exp(tmp_path / "b", "{name: shift, nan_after: 100}")
     with pytest.raises(ResultsConflict, match=r"different configuration \(tracker\.nan_after: .* then, 100 now;"):
         prepare_run_dir(changed, changed.runs[0], force=False)
+    # a block added or removed is named, not printed parameter by parameter (QA pass 14)
+    from mata_eval.run.config import config_change
+
+    block = {"name": "grid_lk", "downscale": 2.0, "win_size": 11}
+    assert config_change({"egomotion": block}, {"egomotion": None}) == "egomotion: {name: 'grid_lk', ...} then, None now"

@@ -512,7 +512,14 @@ def config_change(old: Any, new: Any, path: str = "") -> str | None:
         return None
     if json.dumps(old, sort_keys=True, default=str) == json.dumps(new, sort_keys=True, default=str):
         return None   # as JSON: a tuple now is the list the manifest read back
-    return f"{path or 'configuration'}: {old!r} then, {new!r} now"
+    return f"{path or 'configuration'}: {_short(old)} then, {_short(new)} now"
+
+
+def _short(value: Any) -> str:
+    """A plugin block by its name (a block added or removed printed every parameter)."""
+    if isinstance(value, Mapping) and "name" in value:
+        return f"{{name: {value['name']!r}, ...}}"
+    return repr(value)
 
 
 def plugin_distribution(cls: type) -> dict[str, str]:
