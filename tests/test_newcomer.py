@@ -337,3 +337,21 @@ def test_validate_checks_sequence_names_of_the_synthetic_suite_without_generatin
     exp.write_text(exp.read_text().replace("[syn01_cruise]", "[syn002_manoeuvre]"))
     assert main(["run", str(exp), "-q", "-j", "1", "--no-report"]) == 0   # the generated suite has these names
     assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["syn002_manoeuvre.txt"]
+
+
+def test_a_relative_path_not_found_names_the_folder_it_is_relative_to(tmp_path, monkeypatch, capsys):
+    """QA pass 14: a shipped experiment run from another folder looked for ../shared/data and its
+    profiles there, and the errors did not say relative to what."""
+    monkeypatch.chdir(tmp_path)
+    exp = _write(tmp_path, """
+        dataset: {name: folder, root: ../nowhere/data}
+        tracker: {name: kcf}
+        protocol: {name: eop, tracker_hz: profile, latency_profile: profiles/kcf.json}
+        """)
+    assert main(["validate", str(exp)]) == 2
+    assert (f"cannot read timing profile profiles/kcf.json (relative to the current folder {tmp_path})"
+            in capsys.readouterr().err)
+    exp.write_text(exp.read_text().replace("tracker_hz: profile, latency_profile: profiles/kcf.json", "tracker_hz: 10"))
+    assert main(["validate", str(exp)]) == 2
+    assert (f"folder dataset root not found: ../nowhere/data (relative to the current folder {tmp_path})"
+            in capsys.readouterr().err)

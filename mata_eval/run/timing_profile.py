@@ -153,7 +153,8 @@ def read_profile(path: str | Path) -> TimingProfile:
     try:
         text = path.read_text()
     except OSError as exc:
-        raise ProfileError(f"cannot read timing profile {path}: {exc.strerror or exc}") from None
+        where = "" if path.is_absolute() else f" (relative to the current folder {Path.cwd()})"
+        raise ProfileError(f"cannot read timing profile {path}{where}: {exc.strerror or exc}") from None
     try:
         if path.suffix.lower() in (".yaml", ".yml"):
             import yaml

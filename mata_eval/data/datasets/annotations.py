@@ -333,6 +333,12 @@ def dataset_root(root: str | None) -> Path:
     return NO_ROOT if root is None else Path(root).expanduser()
 
 
+def where(path: Path) -> str:
+    """``path`` as an error names it: a relative one with the folder it is relative to (a shipped
+    experiment run from another folder looked for its ../shared/data there)."""
+    return str(path) if path.is_absolute() else f"{path} (relative to the current folder {Path.cwd()})"
+
+
 def check_fps(plugin: str, fps: float | None) -> None:
     """A dataset's ``fps`` parameter, checked when the experiment is loaded (a ValueError there
     names the file, line and key): a positive finite number, or None where the plugin reads it

@@ -17,7 +17,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
 from .annotations import (DatasetError, annotation_files, check_fps, check_root, dataset_root, frame_paths,
-                          read_attribute_flags, read_boxes, select)
+                          read_attribute_flags, read_boxes, select, where)
 
 #: Flag order of the kit's att files (ATTRIBUTE_ORDER): scale variation, aspect ratio variation,
 #: occlusion, deformation, fast camera motion, in-plane rotation, out-of-plane rotation,
@@ -59,7 +59,7 @@ class DTB70:
             files = {p.stem: p for p in annotation_files(folder)}
         else:
             if not self.root.is_dir():
-                raise DatasetError(f"DTB70 root not found: {self.root}; expected <root>/<seq>/groundtruth_rect.txt")
+                raise DatasetError(f"DTB70 root not found: {where(self.root)}; expected <root>/<seq>/groundtruth_rect.txt")
             files = {d.name: d / "groundtruth_rect.txt" for d in sorted(self.root.iterdir())
                      if (d / "groundtruth_rect.txt").is_file()}
         if not files:

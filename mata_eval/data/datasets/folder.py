@@ -17,7 +17,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
 from .annotations import (DatasetError, MissingFrames, UnusableFrames, check_fps, list_images, numbering_gaps,
-                          read_boxes, select)
+                          read_boxes, select, where)
 
 
 class FolderDataset:
@@ -48,7 +48,7 @@ class FolderDataset:
 
     def _sequence_folders(self) -> dict[str, Path]:
         if not self.root.is_dir():
-            raise DatasetError(f"folder dataset root not found: {self.root}")
+            raise DatasetError(f"folder dataset root not found: {where(self.root)}")
         found = {d.name: d for d in sorted(self.root.iterdir()) if d.is_dir() and self._gt_file(d)}
         if not found and self._gt_file(self.root):
             found = {self.root.name: self.root}

@@ -21,7 +21,7 @@ from ...core.params import param
 from ...core.sequence import FramePaths, Sequence
 from ..occlusion import ATTRIBUTE as OCCLUSION_ATTRIBUTE, read_occlusion_metadata
 from .annotations import (DatasetError, FrameRange, check_root, dataset_root, frame_paths, read_attribute_flags,
-                          read_boxes, read_frame_ranges, select)
+                          read_boxes, read_frame_ranges, select, where)
 
 #: Flag order of ``anno/UAV123/att/*.txt`` (the dataset's ATTRIBUTE_ORDER.txt).
 ATTRIBUTES = ("SV", "ARC", "LR", "FM", "FOC", "POC", "OV", "BC", "IV", "VC", "CM", "SOB")
@@ -93,7 +93,7 @@ class _UAV123Layout:
         if not found and self.params.annotations and not self.anno_dir.is_dir():
             raise DatasetError(f"annotations: folder not found: {self.anno_dir}")
         if not found and not self.root.is_dir() and not self.params.annotations:
-            raise DatasetError(f"{self.name} dataset root not found: {self.root}; expected the official layout "
+            raise DatasetError(f"{self.name} dataset root not found: {where(self.root)}; expected the official layout "
                                f"<root>/data_seq/{self.frames_subset}/ and <root>/anno/{self.subset}/ (set root: <folder>)")
         if not found:
             raise DatasetError(_frame_range_help(self.subset, tried))
