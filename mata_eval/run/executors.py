@@ -9,16 +9,15 @@ with the reason."""
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import dataclasses
 import multiprocessing
 import os
 import signal
-import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterator, Protocol
 
+from ..core.processes import die_with_parent
 from . import stop
 from .config import Experiment
 from .tasks import SequenceResult, Task, failed, run_task
@@ -75,17 +74,6 @@ def _local_worker(parent: int | None) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     die_with_parent(parent)
     one_thread_per_process()
-
-
-def die_with_parent(parent: int | None) -> None:
-    """Linux: ask the kernel to SIGKILL this process when its parent ends, even by ``kill -9``
-    (``prctl(PR_SET_PDEATHSIG)``; no library wraps it, and polling the parent cannot interrupt
-    a block that is running). A parent that ended before the request: exit now. Elsewhere a
-    worker outlives a killed driver until its task ends."""
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
-    if parent is not None and os.getppid() != parent:
-        os._exit(1)
 
 
 @contextlib.contextmanager

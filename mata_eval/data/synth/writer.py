@@ -188,7 +188,7 @@ def _map(fn, tasks: list, jobs: int, progress: bool) -> list:
             return out
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        from ...run.executors import die_with_parent
+        from ...core.processes import die_with_parent
 
         runner = _write_group if fn is _write_frames else functools.partial(_apply_all, fn)
         # the workers end with this process, even when it is killed (kill -9 left them rendering)
