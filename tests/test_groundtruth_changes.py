@@ -142,12 +142,12 @@ def test_eval_names_the_sequences_run_on_other_ground_truth(workdir, capsys):
 
 
 def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_trusted(workdir, capsys):
-    """As an older mata-eval wrote it: no `groundtruth_read` in manifest.json, no `groundtruth` in scores.json."""
+    """As an older mata-eval wrote it: no `groundtruth` in manifest.json or scores.json."""
     run = workdir / "out" / "exp"
     assert main(["report", str(run)]) == 0
-    for name, key, record in (("manifest.json", None, "groundtruth_read"), ("scores.json", "meta", "groundtruth")):
+    for name, key in (("manifest.json", None), ("scores.json", "meta")):
         data = json.loads((run / name).read_text())
-        (data[key] if key else data).pop(record)
+        (data[key] if key else data).pop("groundtruth")
         (run / name).write_text(json.dumps(data))
     _move(workdir)                        # not compared: nothing says what the results were made on
     capsys.readouterr()
@@ -189,20 +189,24 @@ def test_a_later_box_edited_in_a_run_with_occlusion_is_refused(workdir, capsys):
            "the occluders were placed from other boxes" in err
 
 
-def test_a_record_of_every_box_written_under_the_old_key_is_not_compared(workdir, capsys):
-    """Review: a development version recorded every box's sha256 under `groundtruth` also
-    without occlusion; read as the start box's, its folders refused to resume for a false reason."""
+def test_a_record_of_every_box_as_a_development_version_wrote_it_is_read(workdir, capsys):
+    """Review: a development version recorded every box's sha256 also without occlusion; read as
+    the start box's it refused to resume for a false reason. Such a record that still matches is
+    unchanged; one whose start box changed is still refused."""
     from mata_eval.run import results
 
     run = workdir / "out" / "exp"
     manifest = json.loads((run / "manifest.json").read_text())
     seqs = {s.name: s for s in runner.load_sequences(load_experiment("exp.yaml").runs[0])}
     manifest["groundtruth"] = {k: results.groundtruth_sha256(s) for k, s in seqs.items()}
-    manifest.pop(results.RUN_INPUTS)
     (run / "manifest.json").write_text(json.dumps(manifest))
     capsys.readouterr()
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
     assert "2 finished sequence(s) kept" in capsys.readouterr().out
+    (run / "manifest.json").write_text(json.dumps(manifest))
+    _move(workdir)
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
+    assert "whose ground truth changed since they were made (a)" in capsys.readouterr().err
 
 
 def test_a_report_does_not_build_a_generated_dataset_to_compare_it(tmp_path, monkeypatch, capsys):

@@ -275,11 +275,6 @@ def groundtruth_sha256(seq: Sequence) -> str:
     return digest.hexdigest()
 
 
-#: the manifest key of :func:`run_input_sha256` per sequence ("groundtruth", which a development
-#: version filled with :func:`groundtruth_sha256`, is ignored: such folders resume as older ones)
-RUN_INPUTS = "groundtruth_read"
-
-
 def run_input_sha256(seq: Sequence, occluded: bool) -> str:
     """sha256 of what a run reads of a sequence's annotations: the box its tracker starts from,
     and with the occlusion augmentation (``occluded``), which places its occluders from every
@@ -298,6 +293,15 @@ def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence],
     compared."""
     recorded = recorded if isinstance(recorded, dict) else {}
     return [s.name for s in sequences if s.name in recorded and recorded[s.name] != fingerprint(s)]
+
+
+def changed_run_inputs(recorded: Any, sequences: Iterable[Sequence], occluded: bool) -> list[str]:
+    """:func:`changed_groundtruth` of a manifest's ``groundtruth`` record (:func:`run_input_sha256`).
+    A record of every box (:func:`groundtruth_sha256`, as a development version wrote it also
+    without occlusion) that still matches counts as unchanged."""
+    recorded = recorded if isinstance(recorded, dict) else {}
+    return [s.name for s in sequences if s.name in recorded
+            and recorded[s.name] not in (run_input_sha256(s, occluded), groundtruth_sha256(s))]
 
 
 def package_versions() -> dict[str, str]:

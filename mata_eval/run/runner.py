@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
-import functools
 import json
 import os
 import warnings
@@ -153,16 +152,15 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
     Refuses a kept sequence of ``only`` whose record differs now, as a changed model file is
     refused (one ``--sequences`` leaves out is not this run's to judge); one made by an older
     mata-eval (no record) is kept without one."""
-    out, before = run_dir(exp, spec), (old or {}).get(results.RUN_INPUTS) or {}
+    out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
     occluded = spec.occlusion is not None
-    fingerprint = functools.partial(results.run_input_sha256, occluded=occluded)
     record, changed = dict(before), []
     for seq in load_sequences(spec):
         selected = not only or seq.name in only
         if not results.is_finished(out, seq.name) or (force and selected):
-            record[seq.name] = fingerprint(seq)
+            record[seq.name] = results.run_input_sha256(seq, occluded)
         elif selected:
-            changed += results.changed_groundtruth(before, [seq], fingerprint)
+            changed += results.changed_run_inputs(before, [seq], occluded)
     if changed:
         raise ResultsConflict(
             f"{out} holds results of {len(changed)} sequence(s) whose ground truth changed since they were made "
@@ -203,7 +201,7 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise ResultsConflict(f"{out} holds results {changed}; rerun with --force to replace them, "
                                   f"or change `output` in {exp.path}")
         results.clear_run(out)
-    inputs[results.RUN_INPUTS] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
+    inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
     try:
         _write_manifest(out, exp, spec, inputs, notes)
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)

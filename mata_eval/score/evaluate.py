@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import json
 import shlex
 import sys
@@ -367,12 +366,12 @@ def evaluate_results(
         # annotation file fixed later makes the unscorable one scorable)
         "groundtruth": {s.name: results.groundtruth_sha256(s) for s in sequences
                         if s.name in per_seq or s.name in unscorable},
-        # sequences whose tracker results were made on other ground truth (the manifest's record)
         # the result files scored (a report scores the run again when one was edited since)
         "results_sha256": {k: results.results_sha256(d, k) for k in list(per_seq) + list(unscorable)
                            if (d / f"{k}.txt").is_file()} if layout == "mata" else {},
-        "other_groundtruth": results.changed_groundtruth(manifest.get(results.RUN_INPUTS), scored, functools.partial(
-            results.run_input_sha256, occluded=(manifest.get("config") or {}).get("occlusion") is not None)),
+        # sequences whose tracker results were made on other ground truth (the manifest's record)
+        "other_groundtruth": results.changed_run_inputs(
+            manifest.get("groundtruth"), scored, (manifest.get("config") or {}).get("occlusion") is not None),
     }
     return RunScores(
         name=name or manifest.get("run") or d.name,
