@@ -161,7 +161,8 @@ def test_nanotrack_from_pth_matches_the_published_pair_and_tracks(shared_data, t
     from mata_eval_plugins.trackers.nanotrack import NanoTrack, relaxed_copy
 
     pth = shared_data / "models/nanotrack/pth/nanotrackv2.pth"
-    result = E.export_nanotrack(tmp_path, pth)
+    result = E.export_nanotrack(tmp_path, pth.parent)   # the folder holding it (review: "Is a directory")
+    assert json.loads((tmp_path / "export.json").read_text())["checkpoint"] == str(pth)
     ref_bb = _session(relaxed_copy(shared_data / "models/nanotrack/v2/nanotrack_backbone_sim.onnx"))
     ref_hd = _session(shared_data / "models/nanotrack/v2/nanotrack_head_sim.onnx")
     bb, hd = _session(result.graph("backbone").path), _session(result.graph("head").path)

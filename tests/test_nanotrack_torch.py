@@ -79,6 +79,19 @@ def test_an_onnx_graph_or_a_folder_as_the_checkpoint(paths):
     assert len(nt.read_checkpoint(paths["pth"].parent)) == 298
 
 
+
+def test_a_checkpoint_with_python_objects_is_told_about_trust_pickle(tmp_path):
+    """Review: the hint was chosen on the error's first line, which torch 2.13 fills with
+    "Weights only load failed": a real pickled checkpoint was called "not a PyTorch checkpoint"."""
+    import argparse
+
+    path = tmp_path / "legacy.pth"
+    torch.save({"state_dict": nt.NanoTrackV2().state_dict(), "args": argparse.Namespace(lr=0.1)}, path)
+    with pytest.raises(ValueError, match=r"legacy.pth: weights-only loading refused the file .* --trust-pickle"):
+        nt.read_checkpoint(path)
+    assert len(nt.read_checkpoint(path, trust_pickle=True)) == 298
+
+
 def test_random_weights_are_seeded():
     a = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()
     b = nt.init_random(nt.NanoTrackV2(), seed=3).state_dict()

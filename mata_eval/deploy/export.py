@@ -249,6 +249,7 @@ def export_nanotrack(out_dir: str | Path, checkpoint: str | Path | None = None, 
         if checkpoint is not None and random_weights:   # (one of them was silently ignored)
             raise ValueError("nanotrack export: give --checkpoint nanotrackv2.pth or --random-weights, not both")
         if checkpoint is not None:
+            checkpoint = nt.checkpoint_file(checkpoint)   # (the folder holding it: export.json names the file)
             model = nt.load_nanotrack_v2(checkpoint, trust_pickle=trust_pickle)
         elif random_weights:
             model = nt.init_random(nt.NanoTrackV2(), seed).eval()

@@ -237,13 +237,18 @@ def _numpy_safe_globals() -> list:
     return allowed
 
 
+def checkpoint_file(path: str | Path) -> Path:
+    """``path``, or ``path/nanotrackv2.pth`` when it is the folder holding it (as the ViT
+    trackers take theirs)."""
+    path = Path(path).expanduser()
+    return path / "nanotrackv2.pth" if path.is_dir() and (path / "nanotrackv2.pth").is_file() else path
+
+
 def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, torch.Tensor]:
     """The ``state_dict`` of ``nanotrackv2.pth`` (a pysot trainer dict ``{epoch, state_dict,
     optimizer}``, or a bare state_dict). Weights-only unpickling with the numpy scalar/dtype
     globals allowed; ``trust_pickle`` is the explicit opt-in to full unpickling."""
-    path = Path(path)
-    if path.is_dir() and (path / "nanotrackv2.pth").is_file():   # the folder holding it, as for the ViT trackers
-        path = path / "nanotrackv2.pth"
+    path = checkpoint_file(path)
     if not path.is_file():
         raise FileNotFoundError(f"NanoTrack checkpoint not found: {path} (expected nanotrackv2.pth from {SOURCE})")
     import pickle
@@ -256,7 +261,7 @@ def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, t
                 obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
-        if isinstance(exc, pickle.UnpicklingError) and "Unsupported global" in first and not trust_pickle:
+        if isinstance(exc, pickle.UnpicklingError) and "Unsupported global" in str(exc) and not trust_pickle:
             raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, export "
                              "it with `mata-eval export nanotrack --checkpoint FILE --trust-pickle` and use the "
                              "ONNX pair (the nanotrack tracker's torch backend loads weights only)") from exc
