@@ -491,6 +491,7 @@ def test_a_killed_generation_leaves_no_worker_and_its_folder_is_removed_by_the_n
     """QA pass 14: `kill -9` during the suite's generation left its spawned workers rendering
     (reparented to init) and a 100+ MB temporary folder that no later generation removed."""
     import signal
+    import socket
     import subprocess
     import sys
     import time
@@ -514,7 +515,10 @@ def test_a_killed_generation_leaves_no_worker_and_its_folder_is_removed_by_the_n
             proc.kill()
     left = list(tmp_path.glob(".suite.tmp-*"))
     assert len(left) == 1
-    alive = tmp_path / f".suite.tmp-{os.getpid()}-1"   # a generation still running: kept
+    host = socket.gethostname()
+    alive = tmp_path / f".suite.tmp-{host}-{os.getpid()}-1"   # a generation still running: kept
+    elsewhere = tmp_path / f".suite.tmp-{host}x-{proc.pid}-1"  # another machine's (shared cache): kept
     alive.mkdir()
+    elsewhere.mkdir()
     synth.write_suite(root, specs=synth.suite_specs(1, 3, W, H), jobs=1)
-    assert not left[0].exists() and alive.exists()
+    assert not left[0].exists() and alive.exists() and elsewhere.exists()

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import glob
 import json
 import os
 import shutil
+import socket
 import time
 from pathlib import Path
 
@@ -106,7 +108,7 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
         raise FileExistsError(f"{root} exists and is not empty (and is not a synthetic suite); refusing to replace it")
     root.parent.mkdir(parents=True, exist_ok=True)
     _remove_abandoned(root)
-    tmp = root.parent / f".{root.name}.tmp-{os.getpid()}-{time.time_ns()}"
+    tmp = root.parent / f".{root.name}.tmp-{socket.gethostname()}-{os.getpid()}-{time.time_ns()}"
     tmp.mkdir()
     try:
         tasks = [(sp, str(tmp / "data_seq" / "UAV123" / sp.name), quality) for sp in specs]
@@ -137,11 +139,13 @@ def write_suite(root: str | Path, n_sequences: int = 20, n_frames: int = 300, wi
 
 
 def _remove_abandoned(root: Path) -> None:
-    """Delete the temporary folders of ``root`` left by a generating process that no longer
-    exists (killed: ``kill -9`` skips the cleanup; each held 100+ MB of frames)."""
-    for old in root.parent.glob(f".{root.name}.tmp-*-*"):
-        pid = old.name.rsplit("-", 2)[-2]
-        if not pid.isdigit():
+    """Delete the temporary folders of ``root`` left by a generating process of this machine
+    that no longer exists (killed: ``kill -9`` skips the cleanup; each held 100+ MB of frames).
+    Another machine's, in a shared cache, are left alone: its process ids are not ours."""
+    mine = f".{root.name}.tmp-{socket.gethostname()}"
+    for old in root.parent.glob(f"{glob.escape(mine)}-*-*"):
+        prefix, pid, _ = old.name.rsplit("-", 2)
+        if prefix != mine or not pid.isdigit():   # (host "a-b" is not host "a")
             continue
         try:
             os.kill(int(pid), 0)
