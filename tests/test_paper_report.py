@@ -368,7 +368,7 @@ def test_failed_sequences_are_noted_under_the_table(tmp_path):
     assert not (d / "scores.json").exists()  # the failure made the run's old scores stale
     evaluate_run(d, [Sequence("s1", np.tile(GT, (N, 1))), Sequence("s2", np.tile(GT, (N, 1)))])
     t = build_table("protocols", load_runs([d]))
-    assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (of 1)"]
+    assert t.notes == ["a: 1 failed and 0 missing sequence(s) are not in its means (over 1 sequence(s))"]
     assert "- a: 1 failed" in render(t, "markdown")
 
 

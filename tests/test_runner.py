@@ -424,8 +424,13 @@ def test_a_full_disk_at_the_manifest_or_the_scores_names_the_file_and_keeps_the_
 
     monkeypatch.setattr(os, "replace", disk_full_for("manifest.json"))
     with pytest.raises(CannotWrite, match=re.escape(f"cannot write {run / 'manifest.json'}: No space left on device; "
-                                                    "nothing ran")):
+                                                    "nothing ran (the results there stay")):
         run_experiment(exp, jobs=1, progress=False, log=lambda s: None)
+    changed = _exp(tmp_path, "{name: shift, nan_after: 100}")   # --force on another configuration clears first
+    with pytest.raises(CannotWrite, match=r"nothing ran \(the folder holds no results: "):
+        run_experiment(changed, jobs=1, force=True, progress=False, log=lambda s: None)
+    monkeypatch.setattr(os, "replace", replace)
+    run_experiment(exp, jobs=1, progress=False, log=lambda s: None)   # (the results scored below)
     monkeypatch.setattr(os, "replace", disk_full_for("scores.json"))
     (run / "scores.json").unlink(missing_ok=True)
     scores = evaluate_run(run, load_sequences(exp.runs[0]))

@@ -467,7 +467,7 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
     for r in runs:  # a mean over fewer sequences must not pass unnoticed
         if r.scores.failures or r.scores.missing:
             t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
-                           f"sequence(s) are not in its means (of {r.scores.summary.overall.n_sequences})")
+                           f"sequence(s) are not in its means (over {r.scores.summary.overall.n_sequences} sequence(s))")
     return t
 
 

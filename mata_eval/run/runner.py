@@ -205,8 +205,9 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
     try:
         _write_manifest(out, exp, spec, inputs, notes)
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
-        raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran (the results "
-                          "there stay: free space or make the folder writable, then rerun)") from exc
+        kept = "the results there stay" if results.holds_results(out) else "the folder holds no results"
+        raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran ({kept}: "
+                          "free space or make the folder writable, then rerun)") from exc
     return out
 
 
