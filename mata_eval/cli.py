@@ -633,7 +633,12 @@ def cmd_profile(args: argparse.Namespace) -> int:
     from .run.scheduler import BlockError
     from .run.timing_profile import write_profile
 
-    out = Path(args.out)   # before minutes of timing (QA pass: a folder failed at the end, naming a temp file)
+    try:   # what the command line says is checked before minutes of timing
+        scales = _time_scales(args.time_scale)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out)   # (QA pass: a folder failed at the end, naming a temporary file)
     if out.is_dir() or not out.parent.is_dir():
         what = "is a folder" if out.is_dir() else f"is in {out.parent}, which does not exist"
         print(f"error: --out {args.out} {what}: give the timing profile file to write (.json, or .yaml)",
@@ -671,7 +676,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         return 2
     try:
         profile = profile_run(spec, frames=args.frames, warmup=args.warmup, sequence=args.sequence,
-                              experiment=str(exp.path), time_scale=_time_scales(args.time_scale))
+                              experiment=str(exp.path), time_scale=scales)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -689,11 +694,11 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
 
 def _time_scales(items: list[str] | None) -> dict[str, float]:
-    """``--time-scale 20`` (every block) / ``--time-scale tracker=20`` (repeatable) -> block -> factor."""
+    """``--time-scale 20`` (every block) / ``--time-scale tracker=20`` (repeatable) -> block -> factor;
+    a block's own factor wins over the one for every block, whatever their order."""
     from .run.scheduler import BLOCKS
 
-    out: dict[str, float] = {}
-    given: set[str] = set()
+    given: dict[str, float] = {}
     for item in items or []:
         block, _, value = item.rpartition("=")
         try:
@@ -705,9 +710,9 @@ def _time_scales(items: list[str] | None) -> dict[str, float]:
                              f"machine, as the live protocol's time_scale) and a block in {', '.join(BLOCKS)}")
         if block in given:
             raise ValueError(f"--time-scale {item!r}: {'every block' if not block else block} given twice")
-        given.add(block)
-        out.update({b: factor for b in BLOCKS} if not block else {block: factor})
-    return out
+        given[block] = factor
+    every = given.pop("", None)
+    return {**({b: every for b in BLOCKS} if every is not None else {}), **given}
 
 
 def _set_threads(n: int) -> None:

@@ -298,11 +298,16 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     assert prof.machine["time_scale"] == {"tracker": 5.0}
     for scales, words in ((["camera=2"], "--time-scale 'camera=2': expected FACTOR or BLOCK=FACTOR"),
                           (["0.5"], "--time-scale '0.5': expected FACTOR or BLOCK=FACTOR with a factor >= 1"),
-                          (["tracker=6", "tracker=3"], "--time-scale 'tracker=3': tracker given twice")):
+                          (["tracker=6", "tracker=3"], "--time-scale 'tracker=3': tracker given twice"),
+                          (["2", "3"], "--time-scale '3': every block given twice")):
         args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json")]
                                  + [a for v in scales for a in ("--time-scale", v)])
         assert args.func(args) == 2
         assert words in capsys.readouterr().err
+    from mata_eval.cli import _time_scales   # a block's own factor wins, in either order (review)
+
+    assert _time_scales(["tracker=3", "2"]) == _time_scales(["2", "tracker=3"]) == {
+        "tracker": 3.0, "egomotion": 2.0, "estimator": 2.0}
     # QA pass 14: a bad --out failed after the timing, naming a temporary file; profile of a file
     # whose eop reads the profile it is to write; --sequence named as --sequences
     for out, words in ((tmp_path, f"--out {tmp_path} is a folder: give the timing profile file to write"),
