@@ -115,7 +115,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
-               sequences: Sequence[str] | None = None, sequences_flag: str = "--sequences") -> Any:
+               sequences: Sequence[str] | None = None,
+               sequences_flag: str = "--sequences, or sequences= in Python") -> Any:
     """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
     skipped optional run group and per problem (``debug``: raise the first problem's exception,
     with its traceback). Returns the plan, or None when a problem stops the experiment."""

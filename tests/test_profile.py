@@ -316,7 +316,7 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
         assert words in capsys.readouterr().err
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--sequence", "nope"])
     assert args.func(args) == 2
-    assert "unknown sequence name(s) nope (--sequence, or sequences= in Python)" in capsys.readouterr().err
+    assert "unknown sequence name(s) nope (--sequence); the sequences are: " in capsys.readouterr().err
     path.write_text(path.read_text().replace("{name: eop}", f"{{name: eop, tracker_hz: profile, "
                                                             f"latency_profile: {tmp_path / 'new.json'}}}"))
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "new.json")])

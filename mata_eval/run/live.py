@@ -129,7 +129,7 @@ class _Prefetcher:
         with self.cond:
             self.stop = True
             self.cond.notify_all()
-        self.thread.join()
+        self.thread.join(timeout=10.0)   # (a frame source that blocks for good must not hold the exit)
 
 
 def run_live(

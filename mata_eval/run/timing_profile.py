@@ -153,8 +153,9 @@ def read_profile(path: str | Path) -> TimingProfile:
     try:
         text = path.read_text()
     except OSError as exc:
-        where = "" if path.is_absolute() else f" (relative to the current folder {Path.cwd()})"
-        raise ProfileError(f"cannot read timing profile {path}{where}: {exc.strerror or exc}") from None
+        from ..data.datasets.annotations import where
+
+        raise ProfileError(f"cannot read timing profile {where(path)}: {exc.strerror or exc}") from None
     try:
         if path.suffix.lower() in (".yaml", ".yml"):
             import yaml

@@ -28,7 +28,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FrameReadError, Sequence
 from ...core.types import Box
-from .annotations import DatasetError, check_fps
+from .annotations import DatasetError, check_fps, where
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _BAYER = {"bayer_rggb8": cv2.COLOR_BayerBG2BGR, "bayer_bggr8": cv2.COLOR_BayerRG2BGR,
@@ -176,7 +176,7 @@ class RosbagDataset:
         p = self.params
         path = Path(p.path).expanduser()
         if not path.exists():
-            raise DatasetError(f"rosbag: not found: {path}")
+            raise DatasetError(f"rosbag: not found: {where(path)}")
         reader = _open(path)
         try:
             cons = _connections(reader, p.image_topic, path, "image_topic")

@@ -18,7 +18,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import Sequence
 from .annotations import (DatasetError, check_fps, check_root, dataset_root, frame_paths, read_attribute_flags,
-                          read_boxes, select)
+                          read_boxes, select, where)
 
 #: Flag order of ``att/<seq>_att.txt``: background clutter, camera motion, object motion, small
 #: object, illumination variations, object blur, scale variations, long-term tracking, large occlusion.
@@ -57,13 +57,13 @@ class UAVDT:
         if self.params.annotations:
             d = Path(self.params.annotations).expanduser()
             if not d.is_dir():
-                raise DatasetError(f"annotations: folder not found: {d}")
+                raise DatasetError(f"annotations: folder not found: {where(d)}")
             return d
         for rel in ANNO_CANDIDATES:
             if (self.root / rel).is_dir():
                 return self.root / rel
         raise DatasetError(f"UAVDT annotations not found: expected <seq>_gt.txt files in "
-                           f"{' or '.join(str(self.root / r) for r in ANNO_CANDIDATES)} "
+                           f"{' or '.join(where(self.root / r) for r in ANNO_CANDIDATES)} "
                            "(or annotations: <folder>; mata-eval eval: --set annotations=<folder>)")
 
     def frames_dir(self) -> Path:

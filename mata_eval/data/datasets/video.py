@@ -17,7 +17,7 @@ from ...core.hooks import hookimpl
 from ...core.params import param
 from ...core.sequence import FrameReadError, Sequence
 from ...core.types import Box
-from .annotations import DatasetError, check_fps, read_boxes
+from .annotations import DatasetError, check_fps, read_boxes, where
 
 
 class VideoFrames:
@@ -87,7 +87,7 @@ class VideoDataset:
         p = self.params
         path = Path(p.path).expanduser()
         if not path.is_file():
-            raise DatasetError(f"video: file not found: {path}")
+            raise DatasetError(f"video: file not found: {where(path)}")
         cap = open_video(path)
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
         fps = p.fps or float(cap.get(cv2.CAP_PROP_FPS))
