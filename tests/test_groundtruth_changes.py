@@ -286,3 +286,19 @@ def test_run_and_report_name_sequences_left_out_and_results_of_a_removed_sequenc
     for command in (["run", "exp.yaml", "-q", "-j", "1"], ["report", str(workdir / "out" / "exp")]):
         assert main(command) == 0
         assert "1 result file(s) match no sequence of folder: b (not in the table)" in capsys.readouterr().out
+
+
+def test_a_copied_run_folder_is_reported_from_itself(workdir, tmp_path):
+    """QA pass 14: the reports read a run's configuration from the path saved in its scores.json,
+    so a copy (or a moved folder) showed the original folder's tracker, or nothing."""
+    import shutil
+
+    from mata_eval.score.evaluate import load_scores, scores_for
+
+    run = workdir / "out" / "exp"
+    assert main(["report", str(run)]) == 0
+    copy = tmp_path / "elsewhere" / "exp"
+    shutil.copytree(run, copy)
+    shutil.rmtree(run)                           # moved
+    assert load_scores(copy).path == scores_for(copy).path == str(copy.resolve())
+    assert main(["report", str(copy)]) == 0

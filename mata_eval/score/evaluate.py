@@ -449,7 +449,11 @@ def load_scores(run_dir: Path) -> RunScores:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: invalid JSON ({exc}); {REDO}") from None
-    return RunScores.from_dict(data, source=str(path))
+    scores = RunScores.from_dict(data, source=str(path))
+    if (path.parent / results.MANIFEST).is_file():   # a run folder copied or moved: its own path, not
+        # the one saved (the reports read the configuration there: a copy showed the original's tracker)
+        scores = dataclasses.replace(scores, path=str(path.parent.resolve()))
+    return scores
 
 
 # --- run folders of an experiment ---------------------------------------------------------
