@@ -473,3 +473,29 @@ def test_an_estimator_ablation_that_breaks_its_contract_is_named(tmp_path, monke
     d = make_run(tmp_path / "runs", "2-hold", config(mata=True, estimator={"name": f"{module}:Hold"}), {"s": 5})
     with pytest.raises(PlacementError, match=rf"^estimator '{module}:Hold': ablation\(params, egomotion\) {words}"):
         build_table("ablation", load_runs([d]))
+
+
+def test_tables_of_runs_under_different_metric_profiles_say_so(tmp_path):
+    """QA pass 14: rows scored under two metric profiles sat side by side in the paper tables,
+    the per-sequence table and MATA minus its baseline without a word, and the per-sequence
+    mean subtracted A's mean over 2 sequences from B's over 3."""
+    import dataclasses
+
+    from mata_eval.report.overview import mata_deltas
+    from mata_eval.report.paper import sequence_comparison
+    from mata_eval.score.evaluate import load_scores
+
+    a = load_scores(make_run(tmp_path, "a", config(), {"s1": 4, "s2": 20, "s3": 10}))
+    b = load_scores(make_run(tmp_path, "b", config(mata=True), {"s1": 10, "s2": 16, "s3": 10}))
+    b = dataclasses.replace(b, profile="pysot-toolkit")
+    a = dataclasses.replace(a, sequences={**a.sequences, "s3": dataclasses.replace(a.sequences["s3"], sr=float("nan"))})
+    t = sequence_comparison(a, b)
+    assert t.rows[-1][:5] == ["mean (3)", "", "60.0", "65.0", "+5.0"]   # SR over s1, s2: where both have it
+    assert "SR means over the 2 sequence(s) where both runs have it" in t.notes
+    assert "A and B are scored under different metric profiles (default, pysot-toolkit): their numbers do not " \
+           "compare" in t.notes
+    assert mata_deltas([a, b]) is None                                  # not a MATA-minus-baseline row
+    placed = load_runs([str(tmp_path / "a"), str(tmp_path / "b")])
+    placed = [dataclasses.replace(placed[0], scores=a), dataclasses.replace(placed[1], scores=b)]
+    assert "these rows are scored under different metric profiles (default, pysot-toolkit): their numbers do " \
+           "not compare" in build_table("protocols", placed).notes

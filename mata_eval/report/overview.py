@@ -188,6 +188,9 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
         if not is_mata(cfg):
             continue
         found = [(b, bcfg) for b, bcfg in baselines.get(_key(cfg), []) if _same_versions(cfg, bcfg)]
+        if found and not any(b.profile == r.profile for b, _ in found):   # (their difference means nothing)
+            notes.append(f"{r.name}: its baseline is scored under another metric profile; not compared")
+        found = [(b, bcfg) for b, bcfg in found if b.profile == r.profile]
         if not found:
             continue
         # two outputs of one experiment (report jetson/* desktop/*): the baseline beside the run;

@@ -426,15 +426,24 @@ def sequence_comparison(base: RunScores, other: RunScores) -> Table:
         rows.append([s, attrs, pct(a.sr), pct(b.sr), _signed(b.sr - a.sr), pct(a.nt2f), pct(b.nt2f),
                      _signed(b.nt2f - a.nt2f), ff(a.failure_frame), ff(b.failure_frame)])
 
+    # each metric's means over the sequences where it is defined in both runs (QA pass: A's mean
+    # over 2 and B's over 3 were subtracted)
+    both = {m: [s for s in common if math.isfinite(getattr(base.sequences[s], m))
+                and math.isfinite(getattr(other.sequences[s], m))] for m in ("sr", "nt2f")}
+
     def mean(run, m):
-        vals = [getattr(run.sequences[s], m) for s in common]
-        vals = [v for v in vals if math.isfinite(v)]
+        vals = [getattr(run.sequences[s], m) for s in both[m]]
         return sum(vals) / len(vals) if vals else float("nan")
 
     ma, mb = {m: mean(base, m) for m in ("sr", "nt2f")}, {m: mean(other, m) for m in ("sr", "nt2f")}
     rows.append([f"mean ({len(common)})", "", pct(ma["sr"]), pct(mb["sr"]), _signed(mb["sr"] - ma["sr"]),
                  pct(ma["nt2f"]), pct(mb["nt2f"]), _signed(mb["nt2f"] - ma["nt2f"]), "", ""])
     notes = [f"A: {base.name} ({base.path}); B: {other.name} ({other.path})"]
+    notes += [f"{m.upper()} means over the {len(both[m])} sequence(s) where both runs have it"
+              for m in ("sr", "nt2f") if len(both[m]) != len(common)]
+    if base.profile != other.profile:
+        notes.append(f"A and B are scored under different metric profiles ({base.profile}, {other.profile}): "
+                     "their numbers do not compare")
 
     def why(run: RunScores, label: str, s: str) -> str:
         return f"failed in {label}" if s in run.failures else f"no result in {label}"
@@ -464,6 +473,10 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
     if not runs:
         raise PlacementError(f"{kind} table: no runs given")
     t = BUILDERS[kind](list(runs))
+    profiles = sorted({r.scores.profile for r in runs})
+    if len(profiles) > 1:   # (QA pass: rows of two profiles side by side without a word)
+        t.notes.append(f"these rows are scored under different metric profiles ({', '.join(profiles)}): "
+                       "their numbers do not compare")
     for r in runs:  # a mean over fewer sequences must not pass unnoticed
         if r.scores.failures or r.scores.missing:
             t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
