@@ -376,8 +376,9 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     """The run tables (and, with ``--out``, their files and plots) of ``run_dirs``."""
-    from .report.overview import FORMATS, distinct_names, render_table
+    from .report.overview import FORMATS, distinct_names, mata_deltas, render_table
     from .report.plots import plot_curves
+    from .report.tables import render
     from .score.evaluate import ScoresUnavailable, scores_for
 
     runs = []
@@ -393,18 +394,22 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
+    deltas = mata_deltas(runs) if "overall" in tables else None
     for table in tables:
         for fmt in fmts:
-            text = render_table(runs, fmt, table)
-            if out:   # every format asked, the terminal's too (<table>.txt: the default format)
-                path = out / f"{table}.{EXTENSIONS[fmt]}"
-                path.write_text(text)
-                print(f"wrote {path}")
-            if not out or fmt == "terminal":
-                print(text)
-                if table == "overall" and fmt == "terminal":
-                    _print_deltas(runs)
-                    _print_incomplete(runs)
+            texts = [(table, render_table(runs, fmt, table))]
+            if table == "overall" and deltas is not None:   # in every format (QA pass: the terminal's only)
+                texts.append(("mata_vs_baseline", deltas.caption + ":\n" + render(deltas, fmt)
+                                                  if fmt == "terminal" else render(deltas, fmt)))
+            for name, text in texts:
+                if out:   # every format asked, the terminal's too (<table>.txt: the default format)
+                    path = out / f"{name}.{EXTENSIONS[fmt]}"
+                    path.write_text(text)
+                    print(f"wrote {path}")
+                if not out or fmt == "terminal":
+                    print(text)
+            if table == "overall" and fmt == "terminal":
+                _print_incomplete(runs)
     if out and not args.no_plots:
         for p in plot_curves(runs, out):
             print(f"plot: {p}")

@@ -499,3 +499,16 @@ def test_tables_of_runs_under_different_metric_profiles_say_so(tmp_path):
     placed = [dataclasses.replace(placed[0], scores=a), dataclasses.replace(placed[1], scores=b)]
     assert "these rows are scored under different metric profiles (default, pysot-toolkit): their numbers do " \
            "not compare" in build_table("protocols", placed).notes
+
+
+def test_mata_minus_baseline_is_written_in_every_format(tmp_path, capsys):
+    """QA pass 14: the table the README calls the experiment's takeaway existed on the terminal only."""
+    a = make_run(tmp_path, "a", config(), {"s1": 4, "s2": 20})
+    b = make_run(tmp_path, "b", config(mata=True), {"s1": 10, "s2": 16})
+    out = tmp_path / "rep"
+    assert cli.main(["report", str(a), str(b), "--format", "all", "--out", str(out), "--no-plots"]) == 0
+    assert {p.name for p in out.glob("mata_vs_baseline.*")} == {f"mata_vs_baseline.{e}" for e in ("txt", "md", "csv", "tex")}
+    assert "+5.0" in (out / "mata_vs_baseline.md").read_text()           # SR 60.0 -> 65.0
+    capsys.readouterr()
+    assert cli.main(["report", str(a), str(b), "--format", "markdown"]) == 0
+    assert md_rows(capsys.readouterr().out)[-1][:3] == ["KCF", "LTP", "b - a"]
