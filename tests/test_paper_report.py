@@ -512,3 +512,16 @@ def test_mata_minus_baseline_is_written_in_every_format(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["report", str(a), str(b), "--format", "markdown"]) == 0
     assert md_rows(capsys.readouterr().out)[-1][:3] == ["KCF", "LTP", "b - a"]
+
+
+def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path):
+    """QA pass 14: `eval --profile P --output two_P` for three profiles gave three rows named `two`."""
+    import dataclasses
+
+    from mata_eval.report.overview import distinct_names
+    from mata_eval.score.evaluate import load_scores
+
+    a = load_scores(make_run(tmp_path, "two", config(), {"s1": 4}))
+    runs = [dataclasses.replace(a, profile=p) for p in ("default", "pysot-toolkit", "got10k")]
+    assert [r.name for r in distinct_names(runs)] == ["two (default)", "two (pysot-toolkit)", "two (got10k)"]
+    assert [r.name for r in distinct_names([a, a])] == ["two (1)", "two (2)"]

@@ -71,7 +71,8 @@ def _blocks(runs: Sequence[RunScores]) -> list[str]:
 def distinct_names(runs: Sequence[RunScores]) -> list[RunScores]:
     """``runs`` with each name that several of them share followed by the end of its folder's
     path that tells them apart (``mata (out1)``, ``mata (out2)``): two run folders of one
-    experiment written to two outputs are two rows, not two rows of one label."""
+    experiment written to two outputs are two rows, not two rows of one label; one folder scored
+    under several metric profiles (``eval --output``) is told apart by the profile."""
     out = list(runs)
     for name in {r.name for r in runs}:
         same = [i for i, r in enumerate(runs) if r.name == name]
@@ -83,9 +84,12 @@ def distinct_names(runs: Sequence[RunScores]) -> list[RunScores]:
         for k in range(1, max(map(len, parts)) + 1):
             tails = [str(Path(*p[-k:])) for p in parts]
             if len(set(tails)) == len(tails):
-                for i, tail in zip(same, tails):
-                    out[i] = dataclasses.replace(runs[i], name=f"{name} ({tail})")
                 break
+        else:   # one folder scored several times (eval --output): told apart by profile, else by order
+            profiles = [runs[i].profile for i in same]
+            tails = profiles if len(set(profiles)) == len(profiles) else [str(j + 1) for j in range(len(same))]
+        for i, tail in zip(same, tails):
+            out[i] = dataclasses.replace(runs[i], name=f"{name} ({tail})")
     return out
 
 
