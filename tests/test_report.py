@@ -176,6 +176,11 @@ def test_plots_are_png_files(runs, tmp_path):
     for p in paths:
         img = cv2.imread(str(p))
         assert img is not None and img.shape[0] > 100 and img.std() > 0
+    # a run name with mathtext in it is drawn as text (QA pass 14: a matplotlib parse error)
+    import dataclasses
+
+    odd = [dataclasses.replace(runs[0], name=r"a|b $\frac$ x")] + list(runs[1:])
+    assert len(plots.plot_curves(odd, tmp_path / "odd")) == 4
 
 
 def toy_run_folder(tmp_path):

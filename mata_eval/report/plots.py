@@ -36,6 +36,11 @@ def run_colour(i: int) -> tuple[float, float, float]:
     return tuple(cycle[i % len(cycle)])
 
 
+def _label(r: RunScores, value: float) -> str:
+    """A legend entry: the run's name (a ``$`` is text, not mathtext: it failed the plot) and ``value``."""
+    return r.name.replace("$", r"\$") + f" [{pct(value)}]"
+
+
 def _figure():
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -70,6 +75,7 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     runs = list(runs)
     colour = {id(r): run_colour(i) for i, r in enumerate(runs)}  # by position: the same in every plot
+    style = {id(r): ("-", "--", ":")[(i // 18) % 3] for i, r in enumerate(runs)}  # past 18 colours: dashed
     paths = []
 
     def by(metric: str) -> list[RunScores]:
@@ -79,14 +85,14 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     iou_x = np.linspace(0.0, 1.0, 21)
     for r in by("msr"):
         s: Summary = r.summary.overall
-        ax.plot(iou_x, s.success_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.msr)}]")
+        ax.plot(iou_x, s.success_curve, color=colour[id(r)], linestyle=style[id(r)], label=_label(r, s.msr))
     ax.set_xlim(0, 1)
     paths.append(_finish(fig, ax, "Success plot (MSR)", "IoU threshold", "Success rate", out / "success.png"))
 
     fig, ax = _figure()
     for r in by("precision20"):
         s = r.summary.overall
-        ax.plot(PIXEL_GRID, s.precision_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.precision20)}]")
+        ax.plot(PIXEL_GRID, s.precision_curve, color=colour[id(r)], linestyle=style[id(r)], label=_label(r, s.precision20))
     ax.set_xlim(0, 50)
     paths.append(_finish(fig, ax, "Precision plot (P@20)", "Centre error threshold (px)", "Precision",
                          out / "precision.png"))
@@ -94,7 +100,7 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     fig, ax = _figure()
     for r in by("pr"):
         s = r.summary.overall
-        ax.plot(NORM_GRID, s.norm_precision_curve, color=colour[id(r)], label=f"{r.name} [{pct(s.pr)}]")
+        ax.plot(NORM_GRID, s.norm_precision_curve, color=colour[id(r)], linestyle=style[id(r)], label=_label(r, s.pr))
     ax.set_xlim(0, 0.5)
     paths.append(_finish(fig, ax, "Normalised precision plot (PR)", "Normalised centre error threshold",
                          "Precision", out / "norm_precision.png"))
@@ -103,7 +109,7 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     grid = np.linspace(0.0, 1.0, 201)
     for r in by("nt2f"):
         surv = nt2f_survival([s.nt2f for s in r.sequences.values()], grid)
-        ax.step(grid, surv, where="post", color=colour[id(r)], label=f"{r.name} [{pct(r.summary.overall.nt2f)}]")
+        ax.step(grid, surv, where="post", color=colour[id(r)], linestyle=style[id(r)], label=_label(r, r.summary.overall.nt2f))
     ax.set_xlim(0, 1)
     paths.append(_finish(fig, ax, "NT2F plot (sequences not yet failed)", "Normalised time t / N",
                          "Fraction of sequences", out / "nt2f.png"))
