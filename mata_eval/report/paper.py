@@ -497,7 +497,7 @@ def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
                        (machines, _machine_line(m.get("machine")))):
             if v and v not in lst:
                 lst.append(v)
-    out = [f"{len(runs)} run(s); metric profile {', '.join(sorted({r.scores.profile for r in runs}))}"]
+    out = [f"{len({r.scores.path for r in runs})} run(s); metric profile {', '.join(sorted({r.scores.profile for r in runs}))}"]
     if exps:
         out.append("experiments: " + ", ".join(exps))
     if commits:
