@@ -616,6 +616,9 @@ def cmd_timeline(args: argparse.Namespace) -> int:
         print(f"mata-eval timeline: --frames {frames[0]}:{frames[1]} starts after the trace of {args.seq}, "
               f"which has frames 0 to {n_frames - 1}", file=sys.stderr)
         return 2
+    elif frames is not None and frames[1] > n_frames:   # (QA pass: an empty axis up to B)
+        frames = (frames[0], n_frames)
+        print(f"frames {frames[0]}:{n_frames}: the trace of {args.seq} ends at frame {n_frames - 1}")
     plot_timeline(traces, out, frames=frames, title=args.seq)
     print(out)
     return 0
@@ -625,7 +628,9 @@ def cmd_play(args: argparse.Namespace) -> int:
     from .report.playback import play
 
     try:
-        out, n = play(args.run_dirs, args.sequence, args.out, frames=args.frames, sheet=args.sheet)
+        if args.sheet is not None and args.sheet < 1:   # (0 was read as "no sheet": the video's message)
+            raise ValueError(f"--sheet {args.sheet}: expected a number of frames >= 1")
+        out, n = play(args.run_dirs, args.sequence, args.out, frames=args.frames, sheet=args.sheet or 0)
     except (FileNotFoundError, ValueError, OSError, KeyError) as exc:
         print(f"mata-eval play: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
@@ -879,7 +884,7 @@ def _add_play(subparsers) -> None:
     p.add_argument("--out", required=True, help="video file (.mp4 or .avi), or image file (.png) with --sheet")
     p.add_argument("--frames", type=parse_frames, default=None, metavar="A:B",
                    help="frame range, half-open (default: the whole sequence)")
-    p.add_argument("--sheet", type=int, nargs="?", const=9, default=0, metavar="N",
+    p.add_argument("--sheet", type=int, nargs="?", const=9, default=None, metavar="N",
                    help="a PNG contact sheet of N frames spread over the range instead of a video (default N: 9)")
     p.set_defaults(func=cmd_play)
 

@@ -105,6 +105,8 @@ def test_eval_report_timeline_and_profile_work_on_a_live_run(live_run, dataset, 
     capsys.readouterr()
     assert main(["timeline", str(run), "glide", "--frames", "1000:1100", "--out", str(tmp_path / "e.png")]) == 2
     assert "starts after the trace of glide" in capsys.readouterr().err and not (tmp_path / "e.png").exists()
+    assert main(["timeline", str(run), "glide", "--frames", f"1:{N + 100}", "--out", str(tmp_path / "e.png")]) == 0
+    assert f"frames 1:{N}: the trace of glide ends at frame {N - 1}" in capsys.readouterr().out   # (QA pass 14)
     assert main(["profile", str(exp_file), "--frames", "5", "--warmup", "1",
                  "--out", str(tmp_path / "p.json")]) == 0
     assert set(json.loads((tmp_path / "p.json").read_text())["blocks"]) == {"tracker", "egomotion", "estimator"}

@@ -113,7 +113,8 @@ def test_contact_sheet_and_one_line_errors(runs, capsys):
     # any frame is drawn (QA pass: an OpenCV traceback, or the video's message for a sheet)
     for args, words in ((["--sheet", "4", "--out", str(tmp / "s.mp4")], "a contact sheet is an image"),
                         (["--out", str(tmp / "v.png")], "expected a .mp4 or .avi file name"),
-                        (["--sheet", "-3", "--out", str(tmp / "s.png")], "--sheet -3: expected a number of frames")):
+                        (["--sheet", "-3", "--out", str(tmp / "s.png")], "--sheet -3: expected a number of frames"),
+                        (["--sheet", "0", "--out", str(tmp / "s.png")], "--sheet 0: expected a number of frames")):
         assert main(["play", str(dirs[1]), "--sequence", SEQ] + args) == 2
         assert words in capsys.readouterr().err
 
