@@ -141,11 +141,13 @@ def challenges_table(runs: Sequence[RunScores], fmt: str = "terminal", table: st
         rows.append(row)
     labels = [((f"{g[:1].upper()}{g[1:]}" if subsets == "groups" else g) + ("" if fmt == "latex" else f" ({n[g]})"), 2)
               for g in names]
+    empty = [g for g in n if n[g] == 0]
     if not names:
         note = "no sequence of these runs has attributes (the dataset gives none)"
     elif subsets == "groups":
         note = ("challenge groups: a sequence is in a group when it has one of the group's attributes "
-                "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table")
+                "(docs/metrics.md); (n) = sequences in the group; SR and NT2F as in the overall table"
+                + (f"; no sequence is in {', '.join(empty)} (left out)" if empty else ""))
     else:
         note = "attributes of the dataset's sequences; (n) = sequences with it; SR and NT2F as in the overall table"
     return Table(table, "", ["Run"], labels, [c for _ in names for c in ("SR", "NT2F")], rows,
