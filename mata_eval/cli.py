@@ -394,22 +394,28 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    deltas = mata_deltas(runs) if "overall" in tables else None
     for table in tables:
         for fmt in fmts:
-            texts = [(table, render_table(runs, fmt, table))]
-            if table == "overall" and deltas is not None:   # in every format (QA pass: the terminal's only)
-                texts.append(("mata_vs_baseline", deltas.caption + ":\n" + render(deltas, fmt)
-                                                  if fmt == "terminal" else render(deltas, fmt)))
-            for name, text in texts:
-                if out:   # every format asked, the terminal's too (<table>.txt: the default format)
-                    path = out / f"{name}.{EXTENSIONS[fmt]}"
-                    path.write_text(text)
-                    print(f"wrote {path}")
-                if not out or fmt == "terminal":
-                    print(text)
-            if table == "overall" and fmt == "terminal":
-                _print_incomplete(runs)
+            text = render_table(runs, fmt, table)
+            if out:   # every format asked, the terminal's too (<table>.txt: the default format)
+                path = out / f"{table}.{EXTENSIONS[fmt]}"
+                path.write_text(text)
+                print(f"wrote {path}")
+            if not out or fmt == "terminal":
+                print(text)
+                if table == "overall" and fmt == "terminal":
+                    _print_deltas(runs)
+                    _print_incomplete(runs)
+    if out and "overall" in tables:   # MATA minus its baseline as files too (QA pass: the terminal's only)
+        deltas = mata_deltas(runs)
+        for fmt in fmts:
+            path = out / f"mata_vs_baseline.{EXTENSIONS[fmt]}"
+            if deltas is None:
+                path.unlink(missing_ok=True)   # (an earlier report's, of other runs)
+                continue
+            caption = "" if fmt in ("csv", "latex") else deltas.caption + ":\n\n"   # (LaTeX: in \caption)
+            path.write_text(caption + render(deltas, fmt))
+            print(f"wrote {path}")
     if out and not args.no_plots:
         for p in plot_curves(runs, out):
             print(f"plot: {p}")

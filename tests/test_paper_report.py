@@ -508,10 +508,13 @@ def test_mata_minus_baseline_is_written_in_every_format(tmp_path, capsys):
     out = tmp_path / "rep"
     assert cli.main(["report", str(a), str(b), "--format", "all", "--out", str(out), "--no-plots"]) == 0
     assert {p.name for p in out.glob("mata_vs_baseline.*")} == {f"mata_vs_baseline.{e}" for e in ("txt", "md", "csv", "tex")}
-    assert "+5.0" in (out / "mata_vs_baseline.md").read_text()           # SR 60.0 -> 65.0
+    md = (out / "mata_vs_baseline.md").read_text()
+    assert md.startswith("MATA minus its baseline, in points") and "+5.0" in md          # SR 60.0 -> 65.0
     capsys.readouterr()
-    assert cli.main(["report", str(a), str(b), "--format", "markdown"]) == 0
-    assert md_rows(capsys.readouterr().out)[-1][:3] == ["KCF", "LTP", "b - a"]
+    assert cli.main(["report", str(a), str(b), "--format", "csv"]) == 0   # stdout: the one table (> file.csv)
+    assert len(capsys.readouterr().out.strip().splitlines()) == 3
+    assert cli.main(["report", str(a), "--out", str(out), "--no-plots"]) == 0   # no pair: no stale file
+    assert not (out / "mata_vs_baseline.txt").exists()
 
 
 def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path):

@@ -221,7 +221,7 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     if not rows:
         return None
     return Table("mata_vs_baseline", "MATA minus its baseline, in points (same tracker, data and protocol; "
-                 "> 0: MATA better)", ["Tracker", "Protocol", "Runs"], [],
+                 "positive: MATA better)", ["Tracker", "Protocol", "Runs"], [],
                  [lab for _, lab in METRIC_LABELS], rows, notes=notes, stub_align="l")
 
 
