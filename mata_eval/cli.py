@@ -115,14 +115,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
-               sequences: Sequence[str] | None = None,
-               sequences_flag: str = "--sequences, or sequences= in Python") -> Any:
+               sequences: Sequence[str] | None = None, sequences_flag: str | None = None) -> Any:
     """Check what the selected runs need (:mod:`mata_eval.run.preflight`); print one line per
     skipped optional run group and per problem (``debug``: raise the first problem's exception,
     with its traceback). Returns the plan, or None when a problem stops the experiment."""
-    from .run.preflight import plan, skipped_lines
+    from .run.preflight import SEQUENCES_FLAG, plan, skipped_lines
 
-    checked = plan(exp, only, sequences, sequences_flag)
+    checked = plan(exp, only, sequences, sequences_flag or SEQUENCES_FLAG)
     if debug and checked.errors:
         raise checked.errors[0]
     for line in skipped_lines(checked.skipped):

@@ -203,6 +203,10 @@ def test_a_record_of_every_box_as_a_development_version_wrote_it_is_read(workdir
     capsys.readouterr()
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
     assert "2 finished sequence(s) kept" in capsys.readouterr().out
+    # read on that resume as the start box's: a later box fixed by hand afterwards keeps the results
+    (workdir / "data" / "a" / "groundtruth_rect.txt").write_text(BOX * (N - 1) + MOVED)
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    assert "2 finished sequence(s) kept" in capsys.readouterr().out
     (run / "manifest.json").write_text(json.dumps(manifest))
     _move(workdir)
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2

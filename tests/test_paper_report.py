@@ -526,5 +526,11 @@ def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path
 
     a = load_scores(make_run(tmp_path, "two", config(), {"s1": 4}))
     runs = [dataclasses.replace(a, profile=p) for p in ("default", "pysot-toolkit", "got10k")]
-    assert [r.name for r in distinct_names(runs)] == ["two (default)", "two (pysot-toolkit)", "two (got10k)"]
-    assert [r.name for r in distinct_names([a, a])] == ["two (1)", "two (2)"]
+    where = tmp_path.name
+    assert [r.name for r in distinct_names(runs)] == [f"two ({where}, default)", f"two ({where}, pysot-toolkit)",
+                                                     f"two ({where}, got10k)"]
+    assert [r.name for r in distinct_names([a, a])] == [f"two ({where}, default, 1)", f"two ({where}, default, 2)"]
+    # two outputs of one run name keep their folder labels beside a profile copy (review)
+    b = load_scores(make_run(tmp_path / "out2", "two", config(), {"s1": 4}))
+    names = [r.name for r in distinct_names([a, b, dataclasses.replace(a, profile="got10k")])]
+    assert names == [f"two ({where}, default)", "two (out2)", f"two ({where}, got10k)"]

@@ -98,6 +98,9 @@ def test_timeline_plot_and_cli(tmp_path):
     (tmp_path / "seqA.trace.csv").write_text(run.trace_csv())
     out = plot_timeline(run.trace_rows(), tmp_path / "direct.png", frames=(0, 20))
     assert cv2.imread(str(out)) is not None
+    odd = r"a|b $\frac$ x"   # run names and titles are text, not mathtext (review: a parse error)
+    assert cv2.imread(str(plot_timeline({odd: run.trace_rows(), "b": run.trace_rows()}, tmp_path / "odd.png",
+                                        title=odd))) is not None
     parser = build_parser()
     args = parser.parse_args(["timeline", str(tmp_path), "seqA", "--frames", "4:30"])
     assert args.func(args) == 0

@@ -517,7 +517,7 @@ def test_a_killed_generation_leaves_no_worker_and_its_folder_is_removed_by_the_n
     assert len(left) == 1
     host = socket.gethostname()
     alive = tmp_path / f".suite.tmp-{host}-{os.getpid()}-1"   # a generation still running: kept
-    elsewhere = tmp_path / f".suite.tmp-{host}x-{proc.pid}-1"  # another machine's (shared cache): kept
+    elsewhere = tmp_path / f".suite.tmp-{host}-b-{proc.pid}-1"   # host "<host>-b"'s (shared cache): kept
     alive.mkdir()
     elsewhere.mkdir()
     synth.write_suite(root, specs=synth.suite_specs(1, 3, W, H), jobs=1)

@@ -85,9 +85,10 @@ def distinct_names(runs: Sequence[RunScores]) -> list[RunScores]:
             tails = [str(Path(*p[-k:])) for p in parts]
             if len(set(tails)) == len(tails):
                 break
-        else:   # one folder scored several times (eval --output): told apart by profile, else by order
-            profiles = [runs[i].profile for i in same]
-            tails = profiles if len(set(profiles)) == len(profiles) else [str(j + 1) for j in range(len(same))]
+        else:   # one folder scored more than once (eval --output): its rows told apart by profile, then order
+            tails = [str(Path(*p[-1:])) for p in parts]
+            tails = [f"{t}, {runs[i].profile}" if tails.count(t) > 1 else t for t, i in zip(tails, same)]
+            tails = [f"{t}, {j + 1}" if tails.count(t) > 1 else t for j, t in enumerate(tails)]
         for i, tail in zip(same, tails):
             out[i] = dataclasses.replace(runs[i], name=f"{name} ({tail})")
     return out

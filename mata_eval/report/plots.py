@@ -29,16 +29,25 @@ def run_colour(i: int) -> tuple[float, float, float]:
     tab20 shades (18 runs before a colour repeats), without the greens, which are the ground
     truth's in ``mata-eval play``. Every plot of a report, and the playback video, gives run ``i``
     this colour whatever the order of its legend."""
-    from matplotlib import colormaps
-
-    tab20 = colormaps["tab20"].colors   # (dark, light) pairs; the dark ones are tab10's
-    cycle = [tab20[j] for j in range(0, 20, 2) if j != 4] + [tab20[j] for j in range(1, 20, 2) if j != 5]
+    cycle = _colour_cycle()
     return tuple(cycle[i % len(cycle)])
 
 
+def _colour_cycle() -> list:
+    from matplotlib import colormaps
+
+    tab20 = colormaps["tab20"].colors   # (dark, light) pairs; the dark ones are tab10's
+    return [tab20[j] for j in range(0, 20, 2) if j != 4] + [tab20[j] for j in range(1, 20, 2) if j != 5]
+
+
+def as_text(name: str) -> str:
+    """``name`` for a matplotlib label: a ``$`` is text, not mathtext (it failed the plot)."""
+    return name.replace("$", r"\$")
+
+
 def _label(r: RunScores, value: float) -> str:
-    """A legend entry: the run's name (a ``$`` is text, not mathtext: it failed the plot) and ``value``."""
-    return r.name.replace("$", r"\$") + f" [{pct(value)}]"
+    """A legend entry: the run's name and ``value``."""
+    return as_text(r.name) + f" [{pct(value)}]"
 
 
 def _figure():
@@ -75,7 +84,8 @@ def plot_curves(runs: Sequence[RunScores], out_dir: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     runs = list(runs)
     colour = {id(r): run_colour(i) for i, r in enumerate(runs)}  # by position: the same in every plot
-    style = {id(r): ("-", "--", ":")[(i // 18) % 3] for i, r in enumerate(runs)}  # past 18 colours: dashed
+    n = len(_colour_cycle())   # past the colours, dashed, then dotted
+    style = {id(r): ("-", "--", ":")[(i // n) % 3] for i, r in enumerate(runs)}
     paths = []
 
     def by(metric: str) -> list[RunScores]:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 from ..run.scheduler import BLOCKS, LANES, TraceEvent
+from .plots import as_text
 
 COLORS = {"camera": "#7f7f7f", "egomotion": "#2ca02c", "tracker": "#1f77b4", "estimator": "#d62728"}
 
@@ -111,11 +112,11 @@ def plot_timeline(trace_rows: Iterable[Sequence] | Mapping[str, Iterable[Sequenc
         panel_fps = fps or infer_fps(rows)
         _draw_panel(ax, rows, a, b, panel_fps)
         if label:
-            ax.set_title(label, loc="left", fontsize=9)
+            ax.set_title(as_text(label), loc="left", fontsize=9)
     axes[-1].set_xlabel(f"camera frame ({fps or infer_fps(next(iter(panels.values()))):g} Hz)\nbars: start -> "
                         "publish, labelled with the frame processed; x: skipped turn; arrows: detections")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(as_text(title))
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -118,8 +118,11 @@ def find_problems(runs: Iterable[RunSpec], sequences: Iterable[str] | None = Non
             for (what, _), (error, names) in checked.items() if error is not None]
 
 
-def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str],
-                           flag: str = "--sequences, or sequences= in Python") -> str:
+#: how the sequences to run are given (``profile`` names its own ``--sequence``)
+SEQUENCES_FLAG = "--sequences, or sequences= in Python"
+
+
+def unknown_sequences_line(unknown: Iterable[str], known: Iterable[str], flag: str = SEQUENCES_FLAG) -> str:
     """The problem of ``--sequences`` (``flag``) names that are in no dataset of the selected runs."""
     return (f"unknown sequence name(s) {', '.join(sorted(unknown))} ({flag}); "
             f"the sequences are: {', '.join(sorted(known))}")
@@ -155,7 +158,7 @@ def _runs_text(names: tuple[str, ...], n_all: int) -> str:
 
 
 def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable[str] | None = None,
-         sequences_flag: str = "--sequences, or sequences= in Python") -> Plan:
+         sequences_flag: str = SEQUENCES_FLAG) -> Plan:
     """Check the selected runs (``only``: run names; default all) over the selected sequences
     (``sequences``: names, given as ``sequences_flag``; default all) and sort them into runs to do,
     optional runs to skip, and problems that stop the experiment."""

@@ -14,7 +14,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, Iterable, Iterator
 
 import numpy as np
 
@@ -286,13 +286,12 @@ def run_input_sha256(seq: Sequence, occluded: bool) -> str:
     return hashlib.sha256(b"start" + np.array([b.x, b.y, b.w, b.h], np.float64).tobytes()).hexdigest()
 
 
-def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence],
-                        fingerprint: Callable[[Sequence], str] = groundtruth_sha256) -> list[str]:
-    """The sequences whose ``fingerprint`` differs from ``recorded`` (sequence -> digest, as a
-    manifest or a scores.json keeps it); a sequence without a record (older mata-eval) is not
+def changed_groundtruth(recorded: Any, sequences: Iterable[Sequence]) -> list[str]:
+    """The sequences whose :func:`groundtruth_sha256` differs from ``recorded`` (sequence ->
+    digest, as a scores.json keeps it); a sequence without a record (older mata-eval) is not
     compared."""
     recorded = recorded if isinstance(recorded, dict) else {}
-    return [s.name for s in sequences if s.name in recorded and recorded[s.name] != fingerprint(s)]
+    return [s.name for s in sequences if s.name in recorded and recorded[s.name] != groundtruth_sha256(s)]
 
 
 def changed_run_inputs(recorded: Any, sequences: Iterable[Sequence], occluded: bool) -> list[str]:

@@ -262,7 +262,8 @@ def read_checkpoint(path: str | Path, trust_pickle: bool = False) -> dict[str, t
     except Exception as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         if isinstance(exc, pickle.UnpicklingError) and "Unsupported global" in str(exc) and not trust_pickle:
-            raise ValueError(f"{path}: weights-only loading refused the file ({first}); if you trust it, export "
+            refused = next(line.strip() for line in str(exc).splitlines() if "Unsupported global" in line)
+            raise ValueError(f"{path}: weights-only loading refused the file ({refused}); if you trust it, export "
                              "it with `mata-eval export nanotrack --checkpoint FILE --trust-pickle` and use the "
                              "ONNX pair (the nanotrack tracker's torch backend loads weights only)") from exc
         # (QA pass: an ONNX graph was told to retry with --trust-pickle, which it had)
