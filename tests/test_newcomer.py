@@ -355,3 +355,25 @@ def test_a_relative_path_not_found_names_the_folder_it_is_relative_to(tmp_path, 
     assert main(["validate", str(exp)]) == 2
     assert (f"folder dataset root not found: ../nowhere/data (relative to the current folder {tmp_path})"
             in capsys.readouterr().err)
+
+
+def test_a_sequence_folder_with_a_ground_truth_file_of_another_name_is_named(tmp_path, capsys):
+    """QA pass 14: folders with groundtruth_rect.1.txt (OTB's two-target layout), Groundtruth_Rect.txt
+    or groundtruth_rect.txt.txt were left out of the dataset without a word."""
+    import shutil
+
+    root = _folder_dataset(tmp_path / "data")
+    for name, gt in (("Jogging", "groundtruth_rect.1.txt"), ("Win", "groundtruth_rect.txt.txt")):
+        shutil.copytree(root / "square", root / name)
+        (root / name / "groundtruth_rect.txt").rename(root / name / gt)
+    exp = _write(tmp_path, f"""
+        output: {tmp_path / 'out'}
+        dataset: {{name: folder, root: {root}}}
+        tracker: {{name: kcf}}
+        """)
+    assert main(["validate", str(exp)]) == 2
+    err = capsys.readouterr().err
+    assert "2 of 3 sequences cannot run: " in err
+    assert (f"{root / 'Jogging'}: groundtruth_rect.1.txt but no groundtruth_rect.txt or groundtruth.txt (name the "
+            "file with the dataset's groundtruth: [...])") in err
+    assert main(["run", str(exp), "-q", "-j", "1", "--no-report", "--sequences", "square"]) == 0

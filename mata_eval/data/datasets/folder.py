@@ -5,13 +5,17 @@
 
 Values may be comma, tab or space separated; polygons become their axis-aligned bounding box.
 ``root`` may also be a single sequence folder. Frame folders are listed (never read) when the
-sequences are listed; a missing frame folder is reported by ``Sequence.image``.
+sequences are listed; a missing frame folder is reported by ``Sequence.image``. A sequence folder
+with only a file named like a ground-truth file (``groundtruth_rect.1.txt``) is listed as a
+sequence that cannot run, so that the preflight names it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
 
 from ...core.hooks import hookimpl
 from ...core.params import param
@@ -46,16 +50,26 @@ class FolderDataset:
     def _gt_file(self, folder: Path) -> Path | None:
         return next((folder / g for g in self.params.groundtruth if (folder / g).is_file()), None)
 
+    @staticmethod
+    def _lookalikes(folder: Path) -> list[str]:
+        """Files named like a ground-truth file that the ``groundtruth`` names do not match
+        (``groundtruth_rect.1.txt``, ``Groundtruth_Rect.txt``, ``groundtruth_rect.txt.txt``)."""
+        return sorted(f.name for f in folder.iterdir() if f.is_file() and f.name.lower().startswith("groundtruth"))
+
     def _sequence_folders(self) -> dict[str, Path]:
+        """Sequence name -> folder: those with a ground-truth file, and those with only a file
+        named like one (a sequence that cannot run, said by the preflight: it was left out silently)."""
         if not self.root.is_dir():
             raise DatasetError(f"folder dataset root not found: {where(self.root)}")
         found = {d.name: d for d in sorted(self.root.iterdir()) if d.is_dir() and self._gt_file(d)}
         if not found and self._gt_file(self.root):
-            found = {self.root.name: self.root}
+            return {self.root.name: self.root}
         if not found:
             raise DatasetError(f"{self.root}: no sequence folder with a ground-truth file "
                                f"({' or '.join(self.params.groundtruth)}); expected <root>/<seq>/groundtruth_rect.txt")
-        return found
+        lookalike = {d.name: d for d in sorted(self.root.iterdir())
+                     if d.is_dir() and d.name not in found and self._lookalikes(d)}
+        return dict(sorted({**found, **lookalike}.items()))
 
     def sequences(self) -> list[Sequence]:
         folders = self._sequence_folders()
@@ -64,6 +78,12 @@ class FolderDataset:
         for name in names:
             d = folders[name]
             gt_path = self._gt_file(d)
+            if gt_path is None:
+                out.append(Sequence(name=name, groundtruth=np.full((1, 4), np.nan), fps=self.params.fps,
+                                    loader=UnusableFrames(
+                    f"{d}: {', '.join(self._lookalikes(d))} but no {' or '.join(self.params.groundtruth)} "
+                    "(name the file with the dataset's groundtruth: [...])")))
+                continue
             gt = read_boxes(gt_path)
             cands = [d / f for f in self.params.frames]
             frames: list[str] = []
