@@ -174,6 +174,18 @@ def test_bad_annotation_line_names_file_and_line(uav_root):
         make(UAV123, root=str(uav_root), sequences=["car1_1", "boat1"]).sequences()
 
 
+def test_decimal_commas_are_not_read_as_a_polygon(tmp_path):
+    """QA pass 14: a spreadsheet's export, tab-separated with decimal commas, was read as a polygon of
+    8 values, and the run started from a wrong box without a word."""
+    gt = tmp_path / "groundtruth_rect.txt"
+    for sep in ("\t", ";"):
+        gt.write_text(sep.join(["51,64", "47,27", "25,04", "62,02"]) + "\n")
+        with pytest.raises(AnnotationError, match=r"groundtruth_rect\.txt:1: 4 numbers with decimal commas, it seems"):
+            read_boxes(gt)
+    gt.write_text("51,64,47,27,25,04,62,02\n")   # a real polygon, comma-separated: read as one
+    np.testing.assert_allclose(read_boxes(gt), [[25, 2, 62 - 25, 64 - 2]])   # x 51,47,25,62; y 64,27,4,2
+
+
 def test_listing_reads_no_image(uav_root, monkeypatch):
     calls = []
     monkeypatch.setattr(cv2, "imread", lambda *a, **k: calls.append(a))

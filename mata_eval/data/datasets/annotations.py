@@ -43,6 +43,10 @@ class AnnotationError(DatasetError):
 _SPLIT = re.compile(r"[,\t ;]+")
 
 
+#: a line of 4 numbers with decimal commas, separated by tabs or semicolons (a spreadsheet's export)
+_DECIMAL_COMMAS = re.compile(r" *-?\d+,\d+(?: *[\t;] *-?\d+,\d+){3}\s*")
+
+
 def _values(text: str) -> list[str]:
     return [v for v in _SPLIT.split(text.strip()) if v]
 
@@ -78,6 +82,9 @@ def read_boxes(path: str | Path, *, allow_polygons: bool = True) -> np.ndarray:
         lines.pop()
     if not lines:
         raise AnnotationError(path, None, "empty ground-truth file: expected one 'x,y,w,h' line per frame")
+    if allow_polygons and _DECIMAL_COMMAS.fullmatch(lines[0]):   # not a polygon: a spreadsheet's export
+        raise AnnotationError(path, 1, f"4 numbers with decimal commas, it seems ({lines[0].strip()!r}: read as a "
+                                       "polygon of 8 values); write decimal points, '51.64,47.27,25.04,62.02'")
     widths = (4, 8) if allow_polygons else (4,)
     arr = _fast_rows(lines)
     if arr is not None and arr.shape[1] in widths:
