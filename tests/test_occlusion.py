@@ -259,6 +259,13 @@ def test_augment_cli_takes_dataset_parameters_such_as_the_frame_rate(tmp_path):
         (event,) = json.loads((out / "anno" / "UAV123" / "occlusion" / "clip.events.json").read_text())
         spans[fps] = event["end"] - event["start"] + 1
     assert spans == {None: 31, 10: 11}, spans   # duration x fps frames after the first
+    # the copy is read back at its source's rate (QA pass 14: 10 fps footage came back at 30 fps,
+    # and EOP timed it so)
+    from mata_eval.data.datasets.uav123 import UAV123
+
+    (back,) = UAV123(UAV123.Params(root=str(tmp_path / "aug10"))).sequences()
+    assert back.fps == 10.0
+    assert UAV123(UAV123.Params(root=str(tmp_path / "augNone"))).sequences()[0].fps == 30.0
 
 
 @pytest.mark.parametrize("values, where", [

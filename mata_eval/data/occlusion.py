@@ -516,5 +516,7 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
                   f"{int(np.nansum(aug.meta['occlusion'] > 0))} occluded frames", flush=True)
     write_config_seqs(out, [(s.name, len(s)) for s in sequences])
     (out / "augment.json").write_text(json.dumps({"seed": seed, "occlusion": dataclasses.asdict(params),
-                                                 "sequences": written}, indent=1))
+                                                 "sequences": written,
+                                                 # the source's frame rates, which the uav123 loader reads back
+                                                 "fps": {s.name: float(s.fps) for s in sequences}}, indent=1))
     return written

@@ -12,6 +12,7 @@ Listing sequences reads annotations only; frames are read by ``Sequence.image(k)
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -67,6 +68,7 @@ class _UAV123Layout:
     def __init__(self, params: Params):
         self.params = params
         self.root = dataset_root(params.root)
+        self._fps_by_name: dict[str, float] | None = None
 
     # -- folders --
     @property
@@ -162,8 +164,19 @@ class _UAV123Layout:
         if occluded is not None:   # a copy written by `mata-eval augment`: its occluders, as a run saw them
             meta["occlusion"] = occluded[0]
             attrs = attrs | ({OCCLUSION_ATTRIBUTE} if occluded[1] else frozenset())
-        return Sequence(name=name, groundtruth=gt, fps=self.fps, attributes=attrs,
+        return Sequence(name=name, groundtruth=gt, fps=self._augmented_fps().get(name, self.fps), attributes=attrs,
                         frame_paths=frames, meta=meta)
+
+    def _augmented_fps(self) -> dict[str, float]:
+        """Sequence -> frame rate of a copy written by ``mata-eval augment`` (``augment.json``: its
+        source's, e.g. 10 fps footage; it was read at 30); empty for the benchmark's own folders."""
+        if self._fps_by_name is None:
+            try:
+                fps = json.loads((self.root / "augment.json").read_text()).get("fps")
+            except (OSError, ValueError, AttributeError):
+                fps = None
+            self._fps_by_name = {k: float(v) for k, v in fps.items()} if isinstance(fps, dict) else {}
+        return self._fps_by_name
 
 
 class UAV123(_UAV123Layout):
