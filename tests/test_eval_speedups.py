@@ -37,6 +37,8 @@ def test_read_predictions_matches_float_on_every_separator(tmp_path):
     assert got.shape == (5, 4)
     assert np.array_equal(got, want, equal_nan=True)
     assert got.view(np.uint64)[~np.isnan(got)].tolist() == want.view(np.uint64)[~np.isnan(want)].tolist()
+    f.write_bytes(b"\xef\xbb\xbf" + text.replace("\n", "\r\n").encode())   # a BOM and CRLF (QA pass 14)
+    assert np.array_equal(read_predictions(f), want, equal_nan=True)
 
 
 @pytest.mark.parametrize("bad, line", [("1,2,3,4\n1,2,3\n", 2), ("1,2,3,4\n\n1,2,x,4\n", 3),

@@ -93,7 +93,7 @@ def read_predictions(path: Path) -> np.ndarray:
 
     numpy's parser reads the file (it rounds like ``float()``); a file it rejects is read again
     line by line to name the first bad line."""
-    text = Path(path).read_text(encoding="utf-8")
+    text = Path(path).read_text(encoding="utf-8-sig")   # (a BOM, as the ground truth allows)
     if not text.strip():
         return np.empty((0, 4))
     try:
