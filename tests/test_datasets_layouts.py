@@ -285,6 +285,10 @@ def test_folder_layout_frames_in_sequence_folder_and_mixed_separators(tmp_path):
     (s,) = make(FolderDataset, root=str(tmp_path / "data"), fps=25.0).sequences()
     assert s.groundtruth.tolist() == [[1, 2, 3, 4], [5, 6, 7, 8], [9, 10, 11, 12]] and s.fps == 25.0
     assert [int(s.image(i)[0, 0, 0]) for i in range(3)] == [1, 2, 3]
+    write_frames(tmp_path / "tif/t1/img", 3, name=lambda k: f"{k:04d}.tif")   # TIFF frames (QA pass 14: not found)
+    (tmp_path / "tif/t1/groundtruth_rect.txt").write_text("1,2,3,4\n" * 3)
+    (t,) = make(FolderDataset, root=str(tmp_path / "tif")).sequences()
+    assert [int(t.image(i)[0, 0, 0]) for i in range(3)] == [1, 2, 3]
 
 
 def test_folder_layout_frame_count_mismatch(tmp_path):

@@ -21,7 +21,7 @@ import numpy as np
 from ...core.errors import UserError
 from ...core.sequence import FramePaths
 
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")   # what OpenCV reads
 
 
 class DatasetError(UserError, ValueError):
