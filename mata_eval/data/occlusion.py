@@ -501,7 +501,7 @@ def write_augmented(sequences: Seq[Sequence], out: str | Path, params: Occlusion
             path = folder / f"{k + 1:06d}.jpg"
             if not cv2.imwrite(str(path), aug.image(k), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]):
                 raise OSError(f"cannot write frame {path}")
-        (anno / f"{seq.name}.txt").write_text("\n".join(format_box(b) for b in seq.groundtruth) + "\n")
+        (anno / f"{seq.name}.txt").write_text("\n".join(format_box(b, exact=True) for b in seq.groundtruth) + "\n")
         (anno / "att" / f"{seq.name}.txt").write_text(
             ",".join("1" if a in seq.attributes else "0" for a in UAV123_ATTRIBUTES) + "\n")
         write_occlusion_metadata(anno / "occlusion", aug)

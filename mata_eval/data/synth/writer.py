@@ -21,9 +21,13 @@ from .render import RenderedSequence, render
 from .spec import GENERATOR_VERSION, SequenceSpec, suite_specs
 
 
-def format_box(b: np.ndarray) -> str:
+def format_box(b: np.ndarray, exact: bool = False) -> str:
+    """``x,y,w,h`` to 2 decimals (the generated suite's, as published), or ``exact``: every digit
+    of the float (an augmented copy's, so that it scores as its source)."""
     if not np.all(np.isfinite(b)):
         return "NaN,NaN,NaN,NaN"
+    if exact:
+        return ",".join(repr(float(v)) for v in b)
     return ",".join(f"{v:.2f}".rstrip("0").rstrip(".") for v in b)
 
 
