@@ -65,6 +65,8 @@ def run(experiment: str | Path, *, runs: Sequence[str] | None = None, sequences:
     log = print if progress else (lambda _msg: None)
     for line in skipped_lines(checked.skipped):
         log(line)
+    for line in checked.warnings:
+        log(f"warning: {line}")
     names = [r.name for r in checked.runs]
     run_experiment(exp, jobs=jobs, force=force, only=names, sequences=list(sequences or []) or None,
                    progress=progress, log=log)

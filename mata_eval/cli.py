@@ -126,6 +126,8 @@ def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
         raise checked.errors[0]
     for line in skipped_lines(checked.skipped):
         print(line, flush=True)
+    for line in checked.warnings:
+        print(f"warning: {line}", flush=True)
     for line in checked.problems:
         print(f"error: {line}", file=sys.stderr)
     if checked.problems:

@@ -359,7 +359,7 @@ def test_a_relative_path_not_found_names_the_folder_it_is_relative_to(tmp_path, 
 
 def test_a_sequence_folder_with_a_ground_truth_file_of_another_name_is_named(tmp_path, capsys):
     """QA pass 14: folders with groundtruth_rect.1.txt (OTB's two-target layout), Groundtruth_Rect.txt
-    or groundtruth_rect.txt.txt were left out of the dataset without a word."""
+    or groundtruth_rect.txt.txt were left out of the dataset without a word: validate and run say so."""
     import shutil
 
     root = _folder_dataset(tmp_path / "data")
@@ -371,9 +371,11 @@ def test_a_sequence_folder_with_a_ground_truth_file_of_another_name_is_named(tmp
         dataset: {{name: folder, root: {root}}}
         tracker: {{name: kcf}}
         """)
-    assert main(["validate", str(exp)]) == 2
-    err = capsys.readouterr().err
-    assert "2 of 3 sequences cannot run: " in err
-    assert (f"{root / 'Jogging'}: groundtruth_rect.1.txt but no groundtruth_rect.txt or groundtruth.txt (name the "
-            "file with the dataset's groundtruth: [...])") in err
-    assert main(["run", str(exp), "-q", "-j", "1", "--no-report", "--sequences", "square"]) == 0
+    assert main(["validate", str(exp)]) == 0   # (review: refusing every run for them broke OTB's Jogging)
+    out = capsys.readouterr().out
+    assert (f"warning: {root / 'Jogging'}: groundtruth_rect.1.txt but no groundtruth_rect.txt or groundtruth.txt: "
+            "not a sequence of this dataset (to read it, set groundtruth: [FILE] in the dataset block)") in out
+    assert f"warning: {root / 'Win'}: groundtruth_rect.txt.txt but no" in out
+    assert main(["run", str(exp), "-q", "-j", "1", "--no-report"]) == 0
+    assert "warning: " in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["square.txt"]

@@ -40,6 +40,7 @@ class Plan:
     skipped: tuple[tuple[RunSpec, Problem], ...]
     problems: tuple[str, ...]
     errors: tuple[BaseException, ...] = ()
+    warnings: tuple[str, ...] = ()   # what a dataset says of what it leaves out (its optional warnings())
 
 
 def _one_line(exc: BaseException) -> str:
@@ -135,8 +136,7 @@ def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str], flag:
     (without one, or when a dataset cannot be read, its own problem, nothing is said here: the
     run says it then)."""
     known: set[str] = set()
-    blocks = {json.dumps(s.resolved["dataset"], sort_keys=True, default=str): s.dataset for s in specs}
-    for block in blocks.values():
+    for block in _datasets(specs):
         try:
             dataset = block.create()
             if hasattr(dataset, "check"):
@@ -181,10 +181,21 @@ def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable
                 skipped.setdefault(n, p)
         else:
             stopping.append(p)
+    warned: list[str] = []
+    for block in _datasets(specs):
+        try:
+            warned += getattr(block.create(), "warnings", list)()
+        except Exception:   # (a dataset that cannot be read is a problem above)
+            pass
     return Plan(tuple(r for r in specs if r.name not in skipped),
                 tuple((by_name[n], p) for n, p in skipped.items()),
                 tuple(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}" for p in stopping),
-                tuple(p.error for p in stopping if p.error is not None))
+                tuple(p.error for p in stopping if p.error is not None), tuple(warned))
+
+
+def _datasets(specs: Iterable[RunSpec]) -> list[PluginBlock]:
+    """The distinct dataset blocks of ``specs``."""
+    return list({json.dumps(s.resolved["dataset"], sort_keys=True, default=str): s.dataset for s in specs}.values())
 
 
 def skipped_lines(skipped: Iterable[tuple[RunSpec, Problem]]) -> list[str]:
