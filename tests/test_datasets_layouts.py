@@ -289,6 +289,9 @@ def test_folder_layout_frames_in_sequence_folder_and_mixed_separators(tmp_path):
     (tmp_path / "tif/t1/groundtruth_rect.txt").write_text("1,2,3,4\n" * 3)
     (t,) = make(FolderDataset, root=str(tmp_path / "tif")).sequences()
     assert [int(t.image(i)[0, 0, 0]) for i in range(3)] == [1, 2, 3]
+    write_frames(seq, 1, name=lambda k: "preview.webp")   # beside PNG frames: not a frame (review)
+    (s,) = make(FolderDataset, root=str(tmp_path / "data"), fps=25.0).sequences()
+    assert len(s) == 3 and not any(p.endswith(".webp") for p in s.frame_paths)
 
 
 def test_folder_layout_frame_count_mismatch(tmp_path):

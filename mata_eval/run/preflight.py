@@ -13,7 +13,8 @@ import os
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
-from ..data.datasets.annotations import IMAGE_EXTENSIONS, DatasetError, MissingFrames, UnusableFrames
+from ..data.datasets.annotations import (IMAGE_EXTENSIONS, OTHER_IMAGE_EXTENSIONS, DatasetError, MissingFrames,
+                                         UnusableFrames)
 from .config import Experiment, PluginBlock, RunSpec
 from .results import sequence_name_problem
 
@@ -78,7 +79,7 @@ def check_dataset(block: PluginBlock, only: Iterable[str] | None = None) -> Base
         first = next((s.frame_paths[0] for s in sequences if s.name == bad[0] and s.frame_paths), None)
         hint = f" (looked in {' or '.join(where)})" if where else f" (looked for {first})" if first else ""
         return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}; frames are "
-                            f"{', '.join(IMAGE_EXTENSIONS)} files")
+                            f"{', '.join(IMAGE_EXTENSIONS + OTHER_IMAGE_EXTENSIONS)} files")
     misnamed = [why for s in sequences if (why := sequence_name_problem(s.name))]
     if misnamed:
         return DatasetError(f"{len(misnamed)} of {len(sequences)} sequences cannot name their result files: "

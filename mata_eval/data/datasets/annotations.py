@@ -21,7 +21,10 @@ import numpy as np
 from ...core.errors import UserError
 from ...core.sequence import FramePaths
 
-IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")   # what OpenCV reads
+IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
+#: frames of these types are listed only where a folder has none of IMAGE_EXTENSIONS (a preview
+#: .webp or the raw .tif beside a sequence's JPEGs would change its frame count)
+OTHER_IMAGE_EXTENSIONS = (".tif", ".tiff", ".webp")
 
 
 class DatasetError(UserError, ValueError):
@@ -281,9 +284,13 @@ def image_names(folder: str | Path) -> list[str]:
     [] if absent. One directory read, no stat per file."""
     try:
         with os.scandir(folder) as it:
-            names = [e.name for e in it if os.path.splitext(e.name)[1].lower() in IMAGE_EXTENSIONS and e.is_file()]
+            entries = [(e.name, ext) for e in it
+                       if (ext := os.path.splitext(e.name)[1].lower()) in IMAGE_EXTENSIONS + OTHER_IMAGE_EXTENSIONS
+                       and e.is_file()]
     except (FileNotFoundError, NotADirectoryError):
         return []
+    names = [n for n, ext in entries if ext in IMAGE_EXTENSIONS] or \
+        [n for n, ext in entries if ext in OTHER_IMAGE_EXTENSIONS]
     return sorted(names, key=_natural_key)
 
 
