@@ -527,10 +527,16 @@ def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path
     a = load_scores(make_run(tmp_path, "two", config(), {"s1": 4}))
     runs = [dataclasses.replace(a, profile=p) for p in ("default", "pysot-toolkit", "got10k")]
     where = tmp_path.name
-    assert [r.name for r in distinct_names(runs)] == [f"two ({where}, default)", f"two ({where}, pysot-toolkit)",
-                                                     f"two ({where}, got10k)"]
-    assert [r.name for r in distinct_names([a, a])] == [f"two ({where}, default, 1)", f"two ({where}, default, 2)"]
+    assert [r.name for r in distinct_names(runs)] == ["two (default)", "two (pysot-toolkit)", "two (got10k)"]
+    assert [r.name for r in distinct_names([a, a])] == ["two (default, 1)", "two (default, 2)"]
     # two outputs of one run name keep their folder labels beside a profile copy (review)
     b = load_scores(make_run(tmp_path / "out2", "two", config(), {"s1": 4}))
     names = [r.name for r in distinct_names([a, b, dataclasses.replace(a, profile="got10k")])]
     assert names == [f"two ({where}, default)", "two (out2)", f"two ({where}, got10k)"]
+    # two machines' outputs, each scored under two profiles: the machine and the profile (review)
+    jetson = load_scores(make_run(tmp_path / "jetson" / "results", "two", config(), {"s1": 4}))
+    desktop = load_scores(make_run(tmp_path / "desktop" / "results", "two", config(), {"s1": 4}))
+    both = [r2 for r in (jetson, desktop) for r2 in (r, dataclasses.replace(r, profile="got10k"))]
+    assert [r.name for r in distinct_names(both)] == [
+        "two (jetson/results, default)", "two (jetson/results, got10k)",
+        "two (desktop/results, default)", "two (desktop/results, got10k)"]

@@ -78,19 +78,24 @@ def distinct_names(runs: Sequence[RunScores]) -> list[RunScores]:
         same = [i for i, r in enumerate(runs) if r.name == name]
         if len(same) < 2:
             continue
-        parts = [Path(runs[i].path).parts for i in same]
-        if len({p[-1:] for p in parts}) == 1:   # one folder name (the run's): its parents differ
-            parts = [p[:-1] for p in parts]
-        for k in range(1, max(map(len, parts)) + 1):
-            tails = [str(Path(*p[-k:])) for p in parts]
-            if len(set(tails)) == len(tails):
-                break
-        else:   # one folder scored more than once (eval --output): its rows told apart by profile, then order
-            tails = [str(Path(*p[-1:])) for p in parts]
-            tails = [f"{t}, {runs[i].profile}" if tails.count(t) > 1 else t for t, i in zip(tails, same)]
-            tails = [f"{t}, {j + 1}" if tails.count(t) > 1 else t for j, t in enumerate(tails)]
-        for i, tail in zip(same, tails):
-            out[i] = dataclasses.replace(runs[i], name=f"{name} ({tail})")
+        paths = list(dict.fromkeys(runs[i].path for i in same))   # the folders, each once
+        tail_of = {p: "" for p in paths}
+        if len(paths) > 1:
+            parts = [Path(p).parts for p in paths]
+            if len({p[-1:] for p in parts}) == 1:   # one folder name (the run's): its parents differ
+                parts = [p[:-1] for p in parts]
+            for k in range(1, max(map(len, parts)) + 1):
+                tails = [str(Path(*p[-k:])) for p in parts]
+                if len(set(tails)) == len(tails):
+                    tail_of = dict(zip(paths, tails))
+                    break
+        labels = [tail_of[runs[i].path] for i in same]
+        # one folder scored more than once (eval --output): its rows told apart by profile, then order
+        labels = [", ".join(filter(None, [t, runs[i].profile])) if labels.count(t) > 1 else t
+                  for t, i in zip(labels, same)]
+        labels = [f"{t}, {j + 1}" if labels.count(t) > 1 else t for j, t in enumerate(labels)]
+        for i, label in zip(same, labels):
+            out[i] = dataclasses.replace(runs[i], name=f"{name} ({label})")
     return out
 
 
