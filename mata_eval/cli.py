@@ -144,9 +144,12 @@ def _print_deltas(scores: Sequence[Any]) -> None:
     from .report.tables import render
 
     t = mata_deltas(scores)
-    if t is not None:
+    if t is not None and t.rows:
         print(t.caption + ":")
         print(render(t, "terminal"))
+    elif t is not None:   # no pair to show: why (e.g. its baseline scored under another profile)
+        for note in t.notes:
+            print(f"MATA minus its baseline: {note}")
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
@@ -409,11 +412,10 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
                     _print_incomplete(runs)
     if out and "overall" in tables:   # MATA minus its baseline as files too (QA pass: the terminal's only)
         deltas = mata_deltas(runs)
-        for fmt in fmts:
+        for fmt in EXTENSIONS:   # (an earlier report's, of other runs or in another format, is removed)
+            (out / f"mata_vs_baseline.{EXTENSIONS[fmt]}").unlink(missing_ok=True)
+        for fmt in fmts if deltas is not None and deltas.rows else ():
             path = out / f"mata_vs_baseline.{EXTENSIONS[fmt]}"
-            if deltas is None:
-                path.unlink(missing_ok=True)   # (an earlier report's, of other runs)
-                continue
             caption = "" if fmt in ("csv", "latex") else deltas.caption + ":\n\n"   # (LaTeX: in \caption)
             path.write_text(caption + render(deltas, fmt))
             print(f"wrote {path}")

@@ -494,7 +494,8 @@ def test_tables_of_runs_under_different_metric_profiles_say_so(tmp_path):
     assert "SR means over the 2 sequence(s) where both runs have it" in t.notes
     assert "A and B are scored under different metric profiles (default, pysot-toolkit): their numbers do not " \
            "compare" in t.notes
-    assert mata_deltas([a, b]) is None                                  # not a MATA-minus-baseline row
+    t = mata_deltas([a, b])                                             # not a MATA-minus-baseline row: said
+    assert not t.rows and t.notes == ["b: its baseline is scored under another metric profile; not compared"]
     placed = load_runs([str(tmp_path / "a"), str(tmp_path / "b")])
     placed = [dataclasses.replace(placed[0], scores=a), dataclasses.replace(placed[1], scores=b)]
     assert "these rows are scored under different metric profiles (default, pysot-toolkit): their numbers do " \
@@ -513,8 +514,8 @@ def test_mata_minus_baseline_is_written_in_every_format(tmp_path, capsys):
     capsys.readouterr()
     assert cli.main(["report", str(a), str(b), "--format", "csv"]) == 0   # stdout: the one table (> file.csv)
     assert len(capsys.readouterr().out.strip().splitlines()) == 3
-    assert cli.main(["report", str(a), "--out", str(out), "--no-plots"]) == 0   # no pair: no stale file
-    assert not (out / "mata_vs_baseline.txt").exists()
+    assert cli.main(["report", str(a), "--out", str(out), "--no-plots"]) == 0   # no pair: no stale file,
+    assert not list(out.glob("mata_vs_baseline.*"))                                # in any format (review)
 
 
 def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path):

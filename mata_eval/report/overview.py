@@ -182,7 +182,8 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
     configuration without ego-motion and estimator: :func:`_key`, :func:`_same_versions`; the
     one in the same output folder where several are given) is among ``runs``: the experiment's
     takeaway per tracker and protocol. Configurations come from each run folder's manifest;
-    None when no run has its baseline here."""
+    None when no run has its baseline here (a table without rows when only its notes say why,
+    e.g. a baseline scored under another metric profile)."""
     from ..run.results import read_manifest
     from .paper import is_mata, plugin_label, protocol_label
 
@@ -224,7 +225,7 @@ def mata_deltas(runs: Sequence[RunScores]) -> Table | None:
             cells.append(f"{100.0 * (a - b):+.1f}" if math.isfinite(a) and math.isfinite(b) else "-")
         rows.append([plugin_label("tracker", cfg.get("tracker")), protocol_label(cfg.get("protocol"))[0],
                      f"{r.name} - {base.name}"] + cells)
-    if not rows:
+    if not rows and not notes:
         return None
     return Table("mata_vs_baseline", "MATA minus its baseline, in points (same tracker, data and protocol; "
                  "positive: MATA better)", ["Tracker", "Protocol", "Runs"], [],
