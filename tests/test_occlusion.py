@@ -261,11 +261,18 @@ def test_augment_cli_takes_dataset_parameters_such_as_the_frame_rate(tmp_path):
     assert spans == {None: 31, 10: 11}, spans   # duration x fps frames after the first
     # the copy is read back at its source's rate (QA pass 14: 10 fps footage came back at 30 fps,
     # and EOP timed it so)
+    from mata_eval.data.datasets.annotations import DatasetError
     from mata_eval.data.datasets.uav123 import UAV123
 
     (back,) = UAV123(UAV123.Params(root=str(tmp_path / "aug10"))).sequences()
     assert back.fps == 10.0
     assert UAV123(UAV123.Params(root=str(tmp_path / "augNone"))).sequences()[0].fps == 30.0
+    info = tmp_path / "aug10" / "augment.json"
+    doc = json.loads(info.read_text())
+    for bad in (0, None, "10 fps"):   # a hand-edited record is named (review: a bare TypeError, or 0 taken)
+        info.write_text(json.dumps({**doc, "fps": {"clip": bad}}))
+        with pytest.raises(DatasetError, match=r"augment.json: fps.clip: expected a positive number"):
+            UAV123(UAV123.Params(root=str(tmp_path / "aug10"))).sequences()
 
 
 @pytest.mark.parametrize("values, where", [

@@ -125,11 +125,15 @@ class _Prefetcher:
     def close(self) -> None:
         """Stop decoding and wait for the frame being decoded: a daemon thread still inside
         OpenCV when the interpreter exits (Ctrl-C before the clock started) aborted the process
-        ("terminate called without an active exception", SIGABRT)."""
+        ("terminate called without an active exception", SIGABRT). A frame source that blocks
+        for good is left after 10 s, with a line saying so (the exit may then abort)."""
         with self.cond:
             self.stop = True
             self.cond.notify_all()
-        self.thread.join(timeout=10.0)   # (a frame source that blocks for good must not hold the exit)
+        self.thread.join(timeout=10.0)
+        if self.thread.is_alive():
+            print(f"warning: live: reading a frame of {self.sequence.name} did not return within 10 s; "
+                  "left running", file=sys.stderr, flush=True)
 
 
 def run_live(

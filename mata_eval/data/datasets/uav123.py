@@ -13,6 +13,7 @@ Listing sequences reads annotations only; frames are read by ``Sequence.image(k)
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -171,11 +172,17 @@ class _UAV123Layout:
         """Sequence -> frame rate of a copy written by ``mata-eval augment`` (``augment.json``: its
         source's, e.g. 10 fps footage; it was read at 30); empty for the benchmark's own folders."""
         if self._fps_by_name is None:
+            path = self.root / "augment.json"
             try:
-                fps = json.loads((self.root / "augment.json").read_text()).get("fps")
+                fps = json.loads(path.read_text()).get("fps")
             except (OSError, ValueError, AttributeError):
                 fps = None
-            self._fps_by_name = {k: float(v) for k, v in fps.items()} if isinstance(fps, dict) else {}
+            self._fps_by_name = {}
+            for name, value in (fps.items() if isinstance(fps, dict) else ()):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+                    raise DatasetError(f"{path}: fps.{name}: expected a positive number of frames a second, "
+                                       f"got {value!r}")
+                self._fps_by_name[name] = float(value)
         return self._fps_by_name
 
 

@@ -63,7 +63,7 @@ class UAVDT:
             if (self.root / rel).is_dir():
                 return self.root / rel
         raise DatasetError(f"UAVDT annotations not found: expected <seq>_gt.txt files in "
-                           f"{' or '.join(where(self.root / r) for r in ANNO_CANDIDATES)} "
+                           f"{' or '.join(f'<root>/{r}' for r in ANNO_CANDIDATES)} under root {where(self.root)} "
                            "(or annotations: <folder>; mata-eval eval: --set annotations=<folder>)")
 
     def frames_dir(self) -> Path:
