@@ -20,19 +20,28 @@ the relative gate's history (``_gate``; its memory is one vector g per state, re
 GateState through ``PackedGate``), which in Python cost as much as the algebra. Only the
 composition of several motions in one tick stays in Python.
 
-Compiling takes 12 to 17 CPU-s here, once: the cache (``cache=True``) sits next to this file, or in
-the user's cache directory when the package is read-only, and a later process loads it in about
-0.3 s. Where neither is writable, each process compiles it once, quietly.
+Compiling takes 12 to 17 CPU-s here, once: the cache (``cache=True``) sits next to this file in a
+source checkout, in mata-eval's cache folder (``$MATA_EVAL_CACHE`` or ``~/.cache/mata-eval``,
+``numba/``) for an installed package (inside site-packages, ``pip uninstall`` left it behind),
+and a later process loads it in about 0.3 s. Where no location is writable, each process
+compiles it once, quietly. ``NUMBA_CACHE_DIR`` overrides both.
 """
 
 from __future__ import annotations
 
+import os
 import struct
 import warnings
+from pathlib import Path
 from typing import NamedTuple
 
 import numba
 import numpy as np
+
+if not os.environ.get("NUMBA_CACHE_DIR") and {"site-packages", "dist-packages"} & set(Path(__file__).parts):
+    from mata_eval.data.datasets.synthetic import cache_root
+
+    numba.config.CACHE_DIR = str(cache_root() / "numba")
 
 # The HomographyEKF parameters this kernel implements. A parameter added to the filter later is
 # not here until the kernel implements it: the filter then runs its numpy path (backend auto).
