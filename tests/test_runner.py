@@ -591,3 +591,27 @@ def test_a_refused_configuration_change_says_what_changed(tmp_path):
 
     block = {"name": "grid_lk", "downscale": 2.0, "win_size": 11}
     assert config_change({"egomotion": block}, {"egomotion": None}) == "egomotion: {name: 'grid_lk', ...} then, None now"
+
+
+def test_git_commit_is_mata_evals_only(tmp_path):
+    """Wheel-install QA: a package installed in a virtual environment inside the user's own
+    repository recorded that repository's commit as mata-eval's."""
+    import subprocess
+
+    def repo_with(package: Path) -> str:
+        subprocess.run(["git", "init", "-q", str(tmp_path / "repo")], check=True)
+        package.mkdir(parents=True)
+        (package / "__init__.py").write_text("")
+        git = ["git", "-C", str(tmp_path / "repo"), "-c", "user.name=t", "-c", "user.email=t@t"]
+        subprocess.run(git + ["add", "-A"], check=True)
+        subprocess.run(git + ["commit", "-qm", "x"], check=True)
+        return subprocess.run(git + ["rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+
+    installed = tmp_path / "repo" / ".venv" / "lib" / "site-packages" / "mata_eval"
+    repo_with(installed)
+    assert results.git_commit(installed) is None
+    checkout = tmp_path / "repo" / "mata_eval"
+    checkout.mkdir()
+    (checkout / "__init__.py").write_text("")
+    assert results.git_commit(checkout).startswith(
+        subprocess.run(["git", "-C", str(checkout), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip())

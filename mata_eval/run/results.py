@@ -318,9 +318,15 @@ def package_versions() -> dict[str, str]:
 
 
 def git_commit(path: Path | None = None) -> str | None:
-    """The commit of the mata-eval checkout (with ``+dirty`` when it has local changes)."""
-    where = Path(path or Path(__file__).resolve().parent)
+    """The commit of the mata-eval checkout (with ``+dirty`` when it has local changes); None for
+    an installed package, also one in a virtual environment inside the user's own repository
+    (whose commit it recorded): the package must sit at the top of the repository."""
+    where = Path(path or Path(__file__).resolve().parents[1])   # the package folder, mata_eval/
     try:
+        top = subprocess.run(["git", "-C", str(where), "rev-parse", "--show-toplevel"], capture_output=True,
+                             text=True, timeout=5)
+        if top.returncode != 0 or Path(top.stdout.strip()).resolve() != where.resolve().parent:
+            return None
         head = subprocess.run(["git", "-C", str(where), "rev-parse", "HEAD"], capture_output=True,
                               text=True, timeout=5)
         if head.returncode != 0:
