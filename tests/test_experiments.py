@@ -154,6 +154,8 @@ def test_shipped_experiments_are_found_by_name(tmp_path, monkeypatch):
     shipped = find_experiment("quickstart")
     assert shipped.is_file() and shipped.name == "quickstart.yaml"
     assert find_experiment("experiments/quickstart.yaml") == shipped
+    (tmp_path / "quickstart").mkdir()   # a run's output folder of that name does not hide it (wheel QA)
+    assert find_experiment("quickstart") == shipped
     (tmp_path / "experiments").mkdir()
     own = tmp_path / "experiments" / "quickstart.yaml"
     own.write_text("dataset: {name: synthetic}\ntracker: {name: kcf}\n")

@@ -147,11 +147,12 @@ SHIPPED = (Path(__file__).resolve().parents[1] / "experiments", Path(__file__).r
 
 
 def find_experiment(path: str | Path) -> Path:
-    """``path`` when it exists, else the shipped experiment of that file name (``quickstart``,
+    """``path`` when it is a file, else the shipped experiment of that file name (``quickstart``,
     ``experiments/quickstart.yaml`` and ``quickstart.yaml`` all name the one shipped with
-    mata-eval, so the README's commands work from a wheel install outside a clone)."""
+    mata-eval, so the README's commands work from a wheel install outside a clone; a folder
+    ``quickstart/``, a run's output, does not hide it)."""
     path = Path(path)
-    if path.exists() or path.is_absolute():
+    if path.is_file() or path.is_absolute():
         return path
     name = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
     for folder in SHIPPED:
