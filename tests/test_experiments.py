@@ -161,3 +161,18 @@ def test_shipped_experiments_are_found_by_name(tmp_path, monkeypatch):
     own.write_text("dataset: {name: synthetic}\ntracker: {name: kcf}\n")
     assert find_experiment("experiments/quickstart.yaml") == Path("experiments/quickstart.yaml")
     assert {p.stem for p in shipped_experiments()} >= {"quickstart", "protocols", "challenges"}
+
+
+def test_a_shipped_experiment_finds_its_own_files_from_any_folder(tmp_path, monkeypatch):
+    """Wheel-install QA: `mata-eval validate embedded` outside the clone looked for its timing
+    profiles (experiments/profiles/...) in the current folder; from the clone's root the file's
+    configuration (and its hash) is as before."""
+    def profiles() -> list[str]:
+        return [r.resolved["protocol"]["latency_profile"] for r in load_experiment("embedded").runs
+                if r.resolved["protocol"].get("latency_profile")]
+
+    root = find_experiment("embedded").resolve().parents[1]
+    monkeypatch.chdir(root)
+    assert profiles() and all(p.startswith("experiments/profiles/") for p in profiles())   # as written: same hash
+    monkeypatch.chdir(tmp_path)
+    assert all(Path(p).is_absolute() and Path(p).is_file() and Path(p).is_relative_to(root) for p in profiles())

@@ -161,6 +161,21 @@ def find_experiment(path: str | Path) -> Path:
     return path
 
 
+def _shipped_paths(value: Any, base: Path) -> Any:
+    """A shipped experiment's values with each relative path that is not there from the current
+    folder but is under ``base`` (the folder holding ``experiments/``: the clone's root, or the
+    installed package) made absolute: ``experiments/profiles/kcf-x30.json`` is found from any folder
+    and in a wheel install (it was looked for in the current folder only)."""
+    if isinstance(value, dict):
+        return {k: _shipped_paths(v, base) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_shipped_paths(v, base) for v in value]
+    if isinstance(value, str) and value.startswith("experiments/") and not Path(value).exists() \
+            and (base / value).exists():
+        return str(base / value)
+    return value
+
+
 def shipped_experiments() -> list[Path]:
     """The experiment files shipped with mata-eval."""
     folder = next((f for f in SHIPPED if f.is_dir()), None)
@@ -295,6 +310,8 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
     locate = _Locator(path, root)
     if not isinstance(doc, dict):
         raise ConfigError(locate(()), (), "expected a mapping of experiment keys at the top level")
+    if path.resolve().parent in {f.resolve() for f in SHIPPED}:
+        doc = _shipped_paths(doc, path.resolve().parents[1])
     for key in doc:
         if key not in TOP_LEVEL:
             raise ConfigError(locate((key,)), (key,),
