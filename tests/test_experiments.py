@@ -156,6 +156,8 @@ def test_shipped_experiments_are_found_by_name(tmp_path, monkeypatch):
     assert find_experiment("experiments/quickstart.yaml") == shipped
     (tmp_path / "quickstart").mkdir()   # a run's output folder of that name does not hide it (wheel QA)
     assert find_experiment("quickstart") == shipped
+    (tmp_path / "results" / "quickstart").mkdir(parents=True)   # a run folder given by mistake is not run (review)
+    assert find_experiment("results/quickstart") == Path("results/quickstart")
     (tmp_path / "experiments").mkdir()
     own = tmp_path / "experiments" / "quickstart.yaml"
     own.write_text("dataset: {name: synthetic}\ntracker: {name: kcf}\n")
@@ -171,8 +173,14 @@ def test_a_shipped_experiment_finds_its_own_files_from_any_folder(tmp_path, monk
         return [r.resolved["protocol"]["latency_profile"] for r in load_experiment("embedded").runs
                 if r.resolved["protocol"].get("latency_profile")]
 
+    from mata_eval.run.runner import model_files
+
     root = find_experiment("embedded").resolve().parents[1]
     monkeypatch.chdir(root)
-    assert profiles() and all(p.startswith("experiments/profiles/") for p in profiles())   # as written: same hash
-    monkeypatch.chdir(tmp_path)
-    assert all(Path(p).is_absolute() and Path(p).is_file() and Path(p).is_relative_to(root) for p in profiles())
+    hashes = {r.name: r.config_hash for r in load_experiment("embedded").runs}
+    assert profiles() and all(p.startswith("experiments/profiles/") for p in profiles())
+    monkeypatch.chdir(tmp_path)   # (review: the path made absolute put the install folder into the hash)
+    exp = load_experiment("embedded")
+    assert {r.name: r.config_hash for r in exp.runs} == hashes
+    files = [model_files(r)["latency_profile"] for r in exp.runs if r.resolved["protocol"].get("latency_profile")]
+    assert files and all(Path(f["path"]).is_file() and Path(f["path"]).is_relative_to(root) for f in files)

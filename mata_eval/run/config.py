@@ -152,7 +152,7 @@ def find_experiment(path: str | Path) -> Path:
     mata-eval, so the README's commands work from a wheel install outside a clone; a folder
     ``quickstart/``, a run's output, does not hide it)."""
     path = Path(path)
-    if path.is_file() or path.is_absolute():
+    if path.is_file() or path.is_absolute() or path.parent not in (Path("."), Path("experiments")):
         return path
     name = path.name if path.suffix in (".yaml", ".yml") else f"{path.name}.yaml"
     for folder in SHIPPED:
@@ -161,19 +161,15 @@ def find_experiment(path: str | Path) -> Path:
     return path
 
 
-def _shipped_paths(value: Any, base: Path) -> Any:
-    """A shipped experiment's values with each relative path that is not there from the current
-    folder but is under ``base`` (the folder holding ``experiments/``: the clone's root, or the
-    installed package) made absolute: ``experiments/profiles/kcf-x30.json`` is found from any folder
-    and in a wheel install (it was looked for in the current folder only)."""
-    if isinstance(value, dict):
-        return {k: _shipped_paths(v, base) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_shipped_paths(v, base) for v in value]
-    if isinstance(value, str) and value.startswith("experiments/") and not Path(value).exists() \
-            and (base / value).exists():
-        return str(base / value)
-    return value
+def shipped_file(path: str | Path) -> Path:
+    """``path``, or for ``experiments/...`` not found from the current folder the file shipped
+    with mata-eval (a shipped experiment's timing profiles, read from any folder and in a wheel
+    install). The experiment keeps the path as written: its configuration hash is the same
+    wherever mata-eval is installed."""
+    path = Path(path)
+    if path.exists() or path.is_absolute() or path.parts[:1] != ("experiments",):
+        return path
+    return next((f.parent / path for f in SHIPPED if (f.parent / path).exists()), path)
 
 
 def shipped_experiments() -> list[Path]:
@@ -310,8 +306,6 @@ def load_experiment(path: str | Path, registry: Registry | None = None) -> Exper
     locate = _Locator(path, root)
     if not isinstance(doc, dict):
         raise ConfigError(locate(()), (), "expected a mapping of experiment keys at the top level")
-    if path.resolve().parent in {f.resolve() for f in SHIPPED}:
-        doc = _shipped_paths(doc, path.resolve().parents[1])
     for key in doc:
         if key not in TOP_LEVEL:
             raise ConfigError(locate((key,)), (key,),

@@ -149,7 +149,9 @@ def write_profile(profile: TimingProfile, path: str | Path) -> Path:
 
 def read_profile(path: str | Path) -> TimingProfile:
     """Read and validate a timing profile; errors name the file and the offending key."""
-    path = Path(path)
+    from .config import shipped_file
+
+    path = shipped_file(path)
     try:
         text = path.read_text()
     except OSError as exc:

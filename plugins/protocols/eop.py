@@ -21,6 +21,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.run.scheduler import (BLOCKS, EPS, BlockTiming, FixedLatency, Latency, ProfileLatency,
                                      RateWarning, Timing, turn_frames)
+from mata_eval.run.config import shipped_file
 from mata_eval.run.timing_profile import TimingProfile, read_profile
 
 CONSUMERS = BLOCKS + ("output",)
@@ -148,7 +149,7 @@ class EOP:
     def model_files(cls, params: "EOP.Params") -> dict[str, Path]:
         """The timing profile these parameters read: a run's manifest records its sha256, so a
         rerun after the profile was measured again is refused (its rates and latencies changed)."""
-        return {"latency_profile": Path(params.latency_profile)} if params.latency_profile else {}
+        return {"latency_profile": shipped_file(params.latency_profile)} if params.latency_profile else {}
 
     def _block_profile(self, block: str):
         assert self.profile is not None
