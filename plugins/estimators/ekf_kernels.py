@@ -38,10 +38,20 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-if not os.environ.get("NUMBA_CACHE_DIR") and {"site-packages", "dist-packages"} & set(Path(__file__).parts):
+
+
+def _cache_dir() -> str | None:
+    """Where this module's compiled functions are cached: mata-eval's cache folder for an
+    installed package; None (numba's choice: beside this file) in a source checkout, or when
+    ``NUMBA_CACHE_DIR`` is set or no home folder can be found."""
+    if os.environ.get("NUMBA_CACHE_DIR") or not {"site-packages", "dist-packages"} & set(Path(__file__).parts):
+        return None
     from mata_eval.data.datasets.synthetic import cache_root
 
-    numba.config.CACHE_DIR = str(cache_root() / "numba")
+    try:
+        return str(cache_root() / "numba")
+    except RuntimeError:   # no home folder (a container user without a passwd entry)
+        return None
 
 # The HomographyEKF parameters this kernel implements. A parameter added to the filter later is
 # not here until the kernel implements it: the filter then runs its numpy path (backend auto).
@@ -180,12 +190,17 @@ def _njit(fn):
     """numba.njit with IEEE semantics (no fastmath; x / 0 gives inf or nan, as numpy does) and
     an on-disk cache; without a writable cache location, compiled per process, quietly."""
     opts = dict(nogil=True, error_model="numpy")
+    before, where = numba.config.CACHE_DIR, _cache_dir()
     try:
+        if where:   # numba's setting is process-wide: only while these functions choose their cache
+            numba.config.CACHE_DIR = where
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return numba.njit(cache=True, **opts)(fn)
     except RuntimeError:  # "no locator available": no writable cache directory
         return numba.njit(**opts)(fn)
+    finally:
+        numba.config.CACHE_DIR = before
 
 
 # --- the homography projection g (ekf_math._uvw, _jp, _jh, _jpt) ------------------------------
