@@ -412,9 +412,10 @@ def _report_runs(run_dirs: Sequence[str], args: argparse.Namespace) -> int:
                     _print_incomplete(runs)
     if out and "overall" in tables:   # MATA minus its baseline as files too (QA pass: the terminal's only)
         deltas = mata_deltas(runs)
-        for fmt in EXTENSIONS:   # (an earlier report's, of other runs or in another format, is removed)
+        rows = deltas is not None and bool(deltas.rows)
+        for fmt in EXTENSIONS if not rows else ():   # (an earlier report's, of other runs, is removed)
             (out / f"mata_vs_baseline.{EXTENSIONS[fmt]}").unlink(missing_ok=True)
-        for fmt in fmts if deltas is not None and deltas.rows else ():
+        for fmt in fmts if rows else ():
             path = out / f"mata_vs_baseline.{EXTENSIONS[fmt]}"
             caption = "" if fmt in ("csv", "latex") else deltas.caption + ":\n\n"   # (LaTeX: in \caption)
             path.write_text(caption + render(deltas, fmt))

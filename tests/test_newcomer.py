@@ -374,7 +374,8 @@ def test_a_sequence_folder_with_a_ground_truth_file_of_another_name_is_named(tmp
     assert main(["validate", str(exp)]) == 0   # (review: refusing every run for them broke OTB's Jogging)
     out = capsys.readouterr().out
     assert (f"warning: {root / 'Jogging'}: groundtruth_rect.1.txt but no groundtruth_rect.txt or groundtruth.txt: "
-            "not a sequence of this dataset (to read it, set groundtruth: [FILE] in the dataset block)") in out
+            "not a sequence of this dataset (to read it, add its file to the dataset's groundtruth: "
+            "[groundtruth_rect.txt, groundtruth.txt, FILE])") in out
     assert f"warning: {root / 'Win'}: groundtruth_rect.txt.txt but no" in out
     assert main(["run", str(exp), "-q", "-j", "1", "--no-report"]) == 0
     assert "warning: " in capsys.readouterr().out

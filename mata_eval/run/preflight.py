@@ -77,9 +77,9 @@ def check_dataset(block: PluginBlock, only: Iterable[str] | None = None) -> Base
         shown = ", ".join(bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
         where = next((s.loader.looked_in for s in sequences if isinstance(s.loader, MissingFrames)), None)
         first = next((s.frame_paths[0] for s in sequences if s.name == bad[0] and s.frame_paths), None)
-        hint = f" (looked in {' or '.join(where)})" if where else f" (looked for {first})" if first else ""
-        return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}; frames are "
-                            f"{', '.join(IMAGE_EXTENSIONS + OTHER_IMAGE_EXTENSIONS)} files")
+        types = f"; frames are {', '.join(IMAGE_EXTENSIONS + OTHER_IMAGE_EXTENSIONS)} files"   # (a listed folder's)
+        hint = f" (looked in {' or '.join(where)}{types})" if where else f" (looked for {first})" if first else ""
+        return DatasetError(f"{len(bad)} of {len(sequences)} sequences have no frames: {shown}{hint}")
     misnamed = [why for s in sequences if (why := sequence_name_problem(s.name))]
     if misnamed:
         return DatasetError(f"{len(misnamed)} of {len(sequences)} sequences cannot name their result files: "
@@ -191,7 +191,7 @@ def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable
     return Plan(tuple(r for r in specs if r.name not in skipped),
                 tuple((by_name[n], p) for n, p in skipped.items()),
                 tuple(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}" for p in stopping),
-                tuple(p.error for p in stopping if p.error is not None), tuple(warned))
+                tuple(p.error for p in stopping if p.error is not None), tuple(dict.fromkeys(warned)))
 
 
 def _datasets(specs: Iterable[RunSpec]) -> list[PluginBlock]:

@@ -68,13 +68,15 @@ class FolderDataset:
 
     def warnings(self) -> list[str]:
         """The folders under root with only a file named like a ground-truth file: not sequences
-        of this dataset, said by the preflight (QA pass: left out of the means without a word)."""
-        if not self.root.is_dir():
+        of this dataset, said by the preflight (QA pass: left out of the means without a word).
+        None when ``sequences`` names the ones to load."""
+        if not self.root.is_dir() or self.params.sequences:
             return []
-        return [f"{d}: {', '.join(names)} but no {' or '.join(self.params.groundtruth)}: not a sequence of this "
-                f"dataset (to read it, set groundtruth: [FILE] in the dataset block)"
+        names = ", ".join(self.params.groundtruth)
+        return [f"{d}: {', '.join(found)} but no {' or '.join(self.params.groundtruth)}: not a sequence of this "
+                f"dataset (to read it, add its file to the dataset's groundtruth: [{names}, FILE])"
                 for d in sorted(self.root.iterdir())
-                if d.is_dir() and not self._gt_file(d) and (names := self._lookalikes(d))]
+                if d.is_dir() and not self._gt_file(d) and (found := self._lookalikes(d))]
 
     def sequences(self) -> list[Sequence]:
         folders = self._sequence_folders()
