@@ -53,6 +53,7 @@ from ..core.errors import ConfigError, raise_all
 from ..core.params import build_params
 from ..core.registry import Registry, load_registry
 from .results import is_file_name
+from .shipped import SHIPPED
 
 PLUGIN_KEYS = ("dataset", "tracker", "egomotion", "estimator", "protocol")  # = plugin kinds
 NULLABLE = {"egomotion", "estimator", "occlusion"}
@@ -141,9 +142,6 @@ class Experiment:
     runs: tuple[RunSpec, ...]
 
 
-#: where the experiments shipped with mata-eval are: the wheel's ``mata_eval/experiments`` or,
-#: in a source checkout, ``experiments/`` beside the package
-SHIPPED = (Path(__file__).resolve().parents[1] / "experiments", Path(__file__).resolve().parents[2] / "experiments")
 
 
 def find_experiment(path: str | Path) -> Path:
@@ -159,17 +157,6 @@ def find_experiment(path: str | Path) -> Path:
         if (folder / name).is_file():
             return folder / name
     return path
-
-
-def shipped_file(path: str | Path) -> Path:
-    """``path``, or for ``experiments/...`` not found from the current folder the file shipped
-    with mata-eval (a shipped experiment's timing profiles, read from any folder and in a wheel
-    install). The experiment keeps the path as written: its configuration hash is the same
-    wherever mata-eval is installed."""
-    path = Path(path)
-    if path.exists() or path.is_absolute() or path.parts[:1] != ("experiments",):
-        return path
-    return next((f.parent / path for f in SHIPPED if (f.parent / path).exists()), path)
 
 
 def shipped_experiments() -> list[Path]:

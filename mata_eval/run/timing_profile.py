@@ -32,6 +32,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .shipped import shipped_file
+
 FORMAT = "mata-eval timing profile"
 VERSION = 1
 PERCENTILES = (50, 90, 95, 99)
@@ -149,8 +151,6 @@ def write_profile(profile: TimingProfile, path: str | Path) -> Path:
 
 def read_profile(path: str | Path) -> TimingProfile:
     """Read and validate a timing profile; errors name the file and the offending key."""
-    from .config import shipped_file
-
     path = shipped_file(path)
     try:
         text = path.read_text()

@@ -21,7 +21,7 @@ from mata_eval.hooks import hookimpl
 from mata_eval.params import param
 from mata_eval.run.scheduler import (BLOCKS, EPS, BlockTiming, FixedLatency, Latency, ProfileLatency,
                                      RateWarning, Timing, turn_frames)
-from mata_eval.run.config import shipped_file
+from mata_eval.run.shipped import shipped_file
 from mata_eval.run.timing_profile import TimingProfile, read_profile
 
 CONSUMERS = BLOCKS + ("output",)
