@@ -337,6 +337,10 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
         if scores.missing:
             print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
                   + (" ..." if len(scores.missing) > 10 else ""))
+        reps = scores.meta.get("repetitions_left") or []
+        if reps:
+            print(f"{len(reps)} sequence(s){where} have repetitions beyond <seq>_001.txt: only the first is scored "
+                  f"({', '.join(reps[:5])}{' ...' if len(reps) > 5 else ''})")
         un = scores.meta.get("unmatched_results") or []
         if un:
             print(f"{len(un)} result file(s){where} match no sequence of {dataset or scores.meta.get('dataset')}: "

@@ -227,6 +227,18 @@ def test_eval_cli_with_a_dataset_plugin(tmp_path, monkeypatch, capsys):
     assert cli.main(["report", str(out_dir)]) == 0 and "pysot" in capsys.readouterr().out
 
 
+def test_eval_says_that_got10k_repetitions_past_the_first_are_not_scored(tmp_path, monkeypatch, capsys):
+    """QA pass 14: <seq>_002.txt, _003.txt were left without a word."""
+    seqs = make_sequences()[:2]
+    d = write_foreign(tmp_path, predictions(seqs), "got10k")
+    name = seqs[0].name
+    (d / name / f"{name}_002.txt").write_text((d / name / f"{name}_001.txt").read_text())
+    monkeypatch.setattr(cli, "load_dataset", lambda name, root, extra=None: seqs)
+    assert cli.main(["eval", str(d), "--dataset", "toy", "--root", "x", "--no-save"]) == 0
+    assert (f"1 sequence(s) have repetitions beyond <seq>_001.txt: only the first is scored ({name})"
+            in capsys.readouterr().out)
+
+
 def test_eval_cli_reports_unknown_dataset(tmp_path, capsys):
     d = write_foreign(tmp_path, predictions(make_sequences()), "pysot")
     assert cli.main(["eval", str(d), "--dataset", "no_such_dataset", "--root", "x"]) == 2

@@ -360,6 +360,9 @@ def evaluate_results(
         "config_hash": manifest.get("config_hash"),
         "dataset": dataset.get("name") if isinstance(dataset, dict) else None,
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
+        # got10k layout: sequences with more repetitions than the first, the one scored
+        "repetitions_left": sorted(k for k in per_seq if (d / k / f"{k}_002.txt").is_file()) if layout == "got10k"
+        else [],
         "unscorable": unscorable,   # sequence -> why its results cannot be scored (counted as failed)
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
         # what a report compares: the ground truth of each sequence scored or found unscorable (an
