@@ -325,6 +325,15 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     if len(profiles) > 1:
         print("these rows use different metric profiles, so their numbers do not compare: "
               + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
+    missing: dict[tuple[str, ...], list[str]] = {}  # runs short of the same sequences share one line
+    for scores in runs:
+        if scores.missing:
+            missing.setdefault(tuple(scores.missing), []).append(str(scores.path))
+    for names, paths in missing.items():
+        where = ("" if len(runs) == 1 else f" in {paths[0]}" if len(paths) == 1 else
+                 f" in each of the {len(paths)} runs" if len(paths) == len(runs) else f" in {', '.join(paths)}")
+        print(f"{len(names)} sequence(s) without results{where}: {', '.join(names[:10])}"
+              + (" ..." if len(names) > 10 else ""))
     for scores in runs:
         where = f" in {scores.path}" if len(runs) > 1 else ""
         if scores.meta.get("unsaved"):
@@ -334,9 +343,6 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
             print(f"{len(failed)} sequence(s) failed{where}: {', '.join(failed[:10])}"
                   + (" ..." if len(failed) > 10 else "") + "; <run>/<sequence>.failed.json says why")
         _print_unscorable([scores])
-        if scores.missing:
-            print(f"{len(scores.missing)} sequence(s) without results{where}: {', '.join(scores.missing[:10])}"
-                  + (" ..." if len(scores.missing) > 10 else ""))
         reps = scores.meta.get("repetitions_left") or []
         if reps:
             print(f"{len(reps)} sequence(s){where} have repetitions beyond <seq>_001.txt: only the first is scored "

@@ -203,6 +203,24 @@ def test_report_cli_writes_every_format_and_plots(tmp_path, capsys):
     assert "95.2" in capsys.readouterr().out  # perfect tracker: MSR 20/21 in the terminal table
 
 
+def test_runs_short_of_the_same_sequences_share_one_line(tmp_path, capsys):
+    """`run --sequences a` of a 12-run experiment printed the same "without results" line once
+    per run: runs short of the same sequences are named in one line, others in their own."""
+    gt = np.tile([10.0, 10.0, 20.0, 20.0], (6, 1))
+    folders = []
+    for name in ("r1", "r2", "r3"):
+        d, seqs = toy_run_folder(tmp_path / name)
+        evaluate.evaluate_run(d, seqs + [Sequence(s, gt) for s in (("b", "c") if name != "r3" else ("c",))])
+        folders.append(str(d))
+    assert cli.main(["report", *folders]) == 0
+    out = capsys.readouterr().out
+    assert out.count("without results") == 2
+    assert f"2 sequence(s) without results in {folders[0]}, {folders[1]}: b, c" in out
+    assert f"1 sequence(s) without results in {folders[2]}: c" in out
+    assert cli.main(["report", *folders[:2]]) == 0
+    assert "2 sequence(s) without results in each of the 2 runs: b, c" in capsys.readouterr().out
+
+
 def test_report_cli_explains_when_it_cannot_evaluate(tmp_path, capsys):
     d, _ = toy_run_folder(tmp_path)
     assert cli.main(["report", str(d)]) == 2
