@@ -831,7 +831,8 @@ def _add_report(subparsers) -> None:
         description="Report one or more run folders side by side. A run folder without scores.json is "
                     "scored first when its experiment file is still readable.")
     p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="run folders (or scores.json files)")
-    p.add_argument("--out", help="write tables (<table>.txt, .md, .csv or .tex, as --format says) and success / "
+    p.add_argument("--out", help="write tables (<table>.txt, .md, .csv or .tex, as --format says; MATA minus its "
+                                 "baseline as mata_vs_baseline.* when the runs hold such a pair) and success / "
                                  "precision / NT2F plots (PNG) into this folder")
     p.add_argument("--format", choices=FORMATS + ("all",), default="terminal", type=_format_name,
                    help="table format (default: %(default)s; md and tex name markdown and latex too; with --out, "
@@ -917,7 +918,7 @@ def _add_profile(subparsers) -> None:
         description="Build the blocks of one run of an experiment file, feed them real frames of its dataset "
                     "(decoded beforehand), and record per-block latencies after a warm-up. Writes a timing "
                     "profile (JSON, or YAML for .yaml) that the eop protocol reads with latency_profile.")
-    p.add_argument("experiment", help="experiment YAML file")
+    p.add_argument("experiment", help="experiment YAML file, or the name of a shipped one (quickstart, embedded, ...)")
     p.add_argument("--run", help="which run of the matrix (required when the file has several)")
     p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
