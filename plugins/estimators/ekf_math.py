@@ -60,15 +60,6 @@ def jac_hom(H: np.ndarray, p: np.ndarray) -> np.ndarray:
     return np.array(_jh(x, y, *_uvw(H.reshape(9).tolist(), x, y)))
 
 
-def jac_point_times(H: np.ndarray, p: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """m = J_g(p) e (a displacement ``e`` mapped to the new frame) and its derivatives
-    dm/dp (2x2) and dm/dh (2x9); m is linear in e with dm/de = J_g(p)."""
-    h = H.reshape(9).tolist()
-    x, y = float(p[0]), float(p[1])
-    m, mp, mh = _jpt(h, x, y, float(e[0]), float(e[1]), *_uvw(h, x, y))
-    return np.array(m), np.array(mp), np.array(mh)
-
-
 # Scalar kernels on a row-major list ``h`` of 9 floats (plain Python floats: for 2-vectors they
 # are several times faster than numpy element access).
 
