@@ -88,19 +88,26 @@ def _imported_by_a_worker() -> bool:
     return False
 
 
-def evaluate(folder: str | Path, dataset: str, root: str | Path | None = None, *, profile: str = "default",
-             layout: str = "auto", **dataset_params: Any) -> RunScores:
+def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str | Path | None = None, *,
+             profile: str = "default", layout: str = "auto", **dataset_params: Any) -> RunScores | list[RunScores]:
     """Score a results folder (mata-eval run folder, pysot, got10k or pytracking layout; see
-    ``mata-eval eval``) against a dataset's annotations; no file is written.
+    ``mata-eval eval``) against a dataset's annotations; no file is written. A list of folders
+    gives a list of RunScores, the annotations read once.
 
-    ``dataset``: a dataset plugin name (``mata-eval list``); ``root``: its folder; more of its
-    parameters as keywords (``sequences=[...]``, ``fps=30``); ``profile``: the metric profile
-    (``default``, ``pysot-toolkit``, ``got10k``, ...)."""
+    ``dataset``: a dataset plugin name (``mata-eval list``; an unknown one is a ValueError
+    naming those that exist); ``root``: its folder; more of its parameters as keywords
+    (``sequences=[...]``, ``fps=30``); ``profile``: the metric profile (``default``,
+    ``pysot-toolkit``, ``got10k``, ...)."""
     from .core.params import build_params
     from .core.registry import load_registry
     from .score.evaluate import evaluate_results
 
-    cls = load_registry().get("dataset", dataset).cls
+    try:
+        cls = load_registry().get("dataset", dataset).cls
+    except KeyError as exc:
+        raise ValueError(exc.args[0]) from None
     values = {**dataset_params, **({} if root is None else {"root": str(root)})}
     sequences = cls(build_params(cls.Params, values, ("dataset",))).sequences()
-    return evaluate_results(Path(folder), sequences, profile=profile, layout=layout)
+    if isinstance(folder, (str, Path)):
+        return evaluate_results(Path(folder), sequences, profile=profile, layout=layout, dataset=dataset)
+    return [evaluate_results(Path(f), sequences, profile=profile, layout=layout, dataset=dataset) for f in folder]

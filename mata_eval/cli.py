@@ -246,17 +246,26 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
 
-    if len(args.results_dirs) > 1 and (args.name or args.output):
-        print("error: --name and --output take one RESULTS_DIR (each folder is named after itself; "
-              "a mata-eval run folder gets its own scores.json)", file=sys.stderr)
+    resolved = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
+    for twice in sorted({d for d in resolved if resolved.count(d) > 1}):
+        print(f"{twice} is given more than once: scored once")
+    args.results_dirs = list(dict.fromkeys(resolved))
+    if len(args.results_dirs) > 1 and args.name:
+        print("error: --name takes one RESULTS_DIR (each folder is named after itself)", file=sys.stderr)
         return 2
+    if len(args.results_dirs) > 1 and args.output:   # --output DIR: DIR/<folder name>/scores.json each
+        names = [Path(d).name for d in args.results_dirs]
+        same = sorted({n for n in names if names.count(n) > 1})
+        if same:
+            print(f"error: --output with several RESULTS_DIR writes OUTPUT/<folder name>/scores.json, and "
+                  f"{', '.join(same)} names more than one folder; score those one at a time", file=sys.stderr)
+            return 2
     try:
         sets = parse_key_values(args.set or ())
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
     all_scores = []
-    args.results_dirs = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     try:
         manifests = {d: _run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
@@ -291,7 +300,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
                         raise ValueError(f"cannot write scores.json into {results_dir} ({exc.strerror}); "
                                          f"use --no-save, or --output DIR to write it elsewhere") from None
             else:
-                scores = evaluate_results(results_dir, seqs, args.profile, layout=layout, name=args.name)
+                scores = evaluate_results(results_dir, seqs, args.profile, layout=layout, name=args.name,
+                                          dataset=args.dataset)
+                if layout != "auto" and not scores.sequences and detect_layout(Path(results_dir)) != layout:
+                    print(f"{results_dir}: --layout {layout} found no results; the folder holds the "
+                          f"{detect_layout(Path(results_dir))} layout (leave --layout out to detect it)")
         except (FileNotFoundError, ValueError, KeyError) as exc:
             print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
             bad += 1
@@ -300,7 +313,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if not all_scores:
         return 2
     if args.output:
-        print(f"wrote {save_scores(Path(args.output), all_scores[0])}")
+        for scores in all_scores:
+            out = Path(args.output) / Path(scores.path).name if len(args.results_dirs) > 1 else Path(args.output)
+            print(f"wrote {save_scores(out, scores)}")
     all_scores = distinct_names(all_scores)   # two folders of one run name: two labels
     print(render_table(all_scores, "terminal"))
     if args.challenges:
@@ -310,7 +325,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     _print_incomplete(all_scores, args.dataset)
     if bad:
         return 2
-    return 0 if all(s.sequences for s in all_scores) else 1
+    # (as `run`: a result file that cannot be scored is an error; sequences without one are not)
+    return 0 if all(s.sequences and not s.meta.get("unscorable") for s in all_scores) else 1
 
 
 def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
@@ -325,6 +341,13 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     if len(profiles) > 1:
         print("these rows use different metric profiles, so their numbers do not compare: "
               + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
+    datasets: dict[str, list[str]] = {}
+    for scores in runs:
+        if scores.meta.get("dataset"):   # (older scores.json files of foreign folders have none)
+            datasets.setdefault(scores.meta["dataset"], []).append(scores.name)
+    if len(datasets) > 1:
+        print("these rows are scored on different datasets, so their numbers do not compare: "
+              + "; ".join(f"{d}: {', '.join(names)}" for d, names in datasets.items()))
     missing: dict[tuple[str, ...], list[str]] = {}  # runs short of the same sequences share one line
     for scores in runs:
         if scores.missing:
@@ -347,9 +370,19 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
         if reps:
             print(f"{len(reps)} sequence(s){where} have repetitions beyond <seq>_001.txt: only the first is scored "
                   f"({', '.join(reps[:5])}{' ...' if len(reps) > 5 else ''})")
+        fitted = scores.meta.get("length_fitted") or {}
+        if fitted:
+            from .core.metric_profiles import get_profile
+
+            how = {"truncate": "scored over the shorter of the two", "pad": "padded with empty boxes or cut"}
+            policy = how.get(get_profile(scores.profile).length_mismatch, "fitted")
+            print(f"{len(fitted)} result file(s){where} have another length than their sequence, "
+                  f"{policy} as the {scores.profile} profile does: "
+                  + ", ".join(f"{k} ({n} lines, {m} frames)" for k, (n, m) in list(fitted.items())[:5])
+                  + (" ..." if len(fitted) > 5 else ""))
         un = scores.meta.get("unmatched_results") or []
         if un:
-            print(f"{len(un)} result file(s){where} match no sequence of {dataset or scores.meta.get('dataset')}: "
+            print(f"{len(un)} result file(s){where} match no sequence of {dataset or scores.meta.get('dataset') or 'its dataset'}: "
                   f"{', '.join(un[:10])}" + (" ..." if len(un) > 10 else "") + " (not in the table)")
         other = scores.meta.get("other_groundtruth") or []
         if other:
@@ -814,7 +847,8 @@ def _add_eval(subparsers) -> None:
     p.add_argument("--profile", choices=tuple(PROFILES), default="default",
                    help="metric compatibility profile (default: %(default)s)")
     p.add_argument("--name", help="run name shown in the table (default: the folder name)")
-    p.add_argument("--output", help="also write scores.json into this folder")
+    p.add_argument("--output", help="also write scores.json into this folder (with several RESULTS_DIR: into "
+                                    "OUTPUT/<folder name>/ each, for `mata-eval report`)")
     p.add_argument("--no-save", action="store_true", help="do not write scores.json into a mata run folder")
     p.add_argument("--challenges", action="store_true", help="also print the per-challenge table")
     p.add_argument("--attributes", action="store_true",

@@ -3,6 +3,7 @@ frame paths built only when a frame is read, `--version` without the packages.""
 
 from __future__ import annotations
 
+import json
 import pickle
 import shutil
 import subprocess
@@ -101,8 +102,24 @@ def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsy
     assert plus["Seqs"] == "70" and plus["MSR"] == "59.4" and plus["P@20"] == "78.9"
     assert cli.main(["eval", both[1], *common]) == 0
     assert _rows(capsys.readouterr().out)["SiamAPN"] == rows["SiamAPN"]
-    assert cli.main(["eval", *both, *common, "--output", str(tmp_path / "o")]) == 2
-    assert "--name and --output take one RESULTS_DIR" in capsys.readouterr().err
+    assert cli.main(["eval", both[1], *common, "--layout", "got10k"]) == 1   # (QA pass 15b: not said why)
+    assert (f"{both[1]}: --layout got10k found no results; the folder holds the pysot layout"
+            in capsys.readouterr().out)
+    assert cli.main(["eval", *both, *common, "--name", "x"]) == 2
+    assert "--name takes one RESULTS_DIR" in capsys.readouterr().err
+    # --output with several folders: OUTPUT/<folder name>/scores.json each, with the dataset's
+    # name, so that `report` of them is the same table (QA pass 15b: refused; the dataset was null)
+    assert cli.main(["eval", *both, *common, "--output", str(tmp_path / "o")]) == 0
+    capsys.readouterr()
+    saved = [tmp_path / "o" / t for t in ("SiamAPN++", "SiamAPN")]
+    assert [json.loads((s / "scores.json").read_text())["meta"]["dataset"] for s in saved] == ["dtb70", "dtb70"]
+    assert cli.main(["report", *map(str, saved)]) == 0
+    out = capsys.readouterr().out
+    assert _rows(out) == rows and "different datasets" not in out
+    # the same folder twice is scored once (QA pass 15b: two rows, "(default, 1)" and "(default, 2)")
+    assert cli.main(["eval", both[1], both[1] + "/", *common]) == 0
+    first, out = capsys.readouterr().out.split("\n", 1)
+    assert first == f"{both[1]} is given more than once: scored once" and list(_rows(out)) == ["SiamAPN"]
     # a folder that cannot be scored in the middle: said, and the others scored (QA pass: the
     # call stopped there, and the last folder was never scored)
     bad = tmp_path / "DTB70" / "Empty"
@@ -115,10 +132,30 @@ def test_eval_scores_several_folders_in_one_process(shared_data, tmp_path, capsy
     broken = tmp_path / "DTB70" / "Broken"
     shutil.copytree(both[1], broken)
     (broken / "Animal1.txt").write_text("1,2,3\n")
-    assert cli.main(["eval", str(broken), *common]) == 0
+    assert cli.main(["eval", str(broken), *common]) == 1        # as `run` (QA pass 15b: 0)
     out = capsys.readouterr().out
     assert f"cannot score Broken/Animal1: {broken / 'Animal1.txt'}:1: expected 4 numbers" in out
     assert _rows(out)["Broken"][0] == "69" and _rows(out)["Broken"][-1] == "1"   # Seqs, Failed
+    # a profile that cuts a short file says so (QA pass 15b: got10k scored 20 of 149 frames silently)
+    (broken / "Animal1.txt").write_text("".join(f"{10 + k},10,20,20\n" for k in range(20)))
+    common[-1] = "got10k"
+    assert cli.main(["eval", str(broken), *common]) == 0
+    n = len(np.loadtxt(ann / "Animal1.txt", delimiter=","))
+    assert (f"1 result file(s) have another length than their sequence, scored over the shorter of the two "
+            f"as the got10k profile does: Animal1 (20 lines, {n} frames)") in capsys.readouterr().out
+
+
+def test_vot_reset_based_output_is_named_as_such(tmp_path):
+    """QA pass 15b: the VOT toolkit's baseline output (1 = initialised, 2 = failed, 0 = skipped)
+    gave "expected 4 numbers" only."""
+    f = tmp_path / "bag_001.txt"
+    f.write_text("1\n10,10,20,20\n2\n0\n")
+    with pytest.raises(ValueError, match=r"bag_001.txt:1: expected 4 numbers x,y,w,h, got '1' \(.*VOT toolkit's reset"):
+        read_predictions(f)
+    f.write_text("10,10,20,20\n7\n")
+    with pytest.raises(ValueError) as err:
+        read_predictions(f)
+    assert "VOT" not in str(err.value)
 
 
 def test_version_answers_without_importing_the_packages():

@@ -211,6 +211,12 @@ def test_api_run_returns_the_scores_of_each_run(mata_and_baseline):
         assert 0.0 <= r.overall.sr <= 1.0 and r.overall.n_frames == 12
     again = me.evaluate(out / "baseline", dataset="folder", root=root)
     assert again.overall.sr == runs[0].overall.sr and again.overall.nt2f == runs[0].overall.nt2f
+    # several folders, the annotations read once; an unknown dataset is a ValueError naming those
+    # that exist (QA pass 15b: a TypeError for the list, a KeyError's quoted message)
+    both = me.evaluate([out / "baseline", out / "mata"], dataset="folder", root=root)
+    assert [b.overall.sr for b in both] == [r.overall.sr for r in runs]
+    with pytest.raises(ValueError, match="unknown dataset 'folderz'; available: .*folder"):
+        me.evaluate(out / "baseline", dataset="folderz", root=root)
 
 
 def test_mata_minus_baseline_pairs_runs_and_subtracts(mata_and_baseline):

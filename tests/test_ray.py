@@ -35,7 +35,8 @@ def cluster(tmp_path_factory):
     cache = tmp_path_factory.mktemp("cache")
     before = os.environ.get("MATA_EVAL_CACHE")
     os.environ["MATA_EVAL_CACHE"] = str(cache)
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="error", log_to_driver=False)
+    # "local": a cluster of its own, also where `ray start` left one running on this machine
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="error", log_to_driver=False)
     # The workers cannot import this test module: send its toy plugins by value.
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     yield cache

@@ -221,6 +221,21 @@ def test_runs_short_of_the_same_sequences_share_one_line(tmp_path, capsys):
     assert "2 sequence(s) without results in each of the 2 runs: b, c" in capsys.readouterr().out
 
 
+def test_rows_scored_on_different_datasets_are_said(tmp_path, capsys):
+    """QA pass 15b: `report` put a run on one dataset and a folder scored on another in one table
+    without a word; rows of scores.json files without a dataset name are not counted."""
+    names = []
+    for name, dataset in (("r1", "dtb70"), ("r2", "uav123"), ("r3", None)):
+        d, seqs = toy_run_folder(tmp_path / name)
+        evaluate.save_scores(d, evaluate.evaluate_results(d, seqs, dataset=dataset))
+        names.append(str(d))
+    assert cli.main(["report", *names]) == 0
+    out = capsys.readouterr().out
+    assert "these rows are scored on different datasets, so their numbers do not compare: dtb70: run (r1); uav123: run (r2)" in out
+    assert cli.main(["report", names[0], names[2]]) == 0
+    assert "different datasets" not in capsys.readouterr().out
+
+
 def test_report_cli_explains_when_it_cannot_evaluate(tmp_path, capsys):
     d, _ = toy_run_folder(tmp_path)
     assert cli.main(["report", str(d)]) == 2

@@ -157,6 +157,18 @@ def test_a_crash_fails_with_exit_code_and_stderr_and_is_reaped():
     assert tracker.pid is None and gone(pid)
 
 
+def test_a_clean_exit_at_initialize_points_at_the_single_object_calls():
+    """QA pass 15b: a C tracker on libtrax's single-object calls ends the session at initialize
+    with exit code 0, and the error did not say why."""
+    with pytest.raises(TrackerProcessError, match="exited with code 0 during initialize .*trax_server_wait_mot"):
+        scripted("--exit-at-init").initialize(frame(0), Box(10.0, 12.0, 8.0, 6.0))
+    tracker = scripted("--crash-at", "1")
+    tracker.initialize(frame(0), Box(10.0, 12.0, 8.0, 6.0))
+    with pytest.raises(TrackerProcessError) as err:   # a failure elsewhere is not given the hint
+        tracker.track(frame(1))
+    assert "trax_server_wait_mot" not in str(err.value)
+
+
 def test_a_hang_times_out_and_the_whole_process_group_is_killed():
     tracker = scripted("--hang-at", "1", timeout_s=1.0)
     tracker.initialize(frame(0), Box(10.0, 12.0, 8.0, 6.0))

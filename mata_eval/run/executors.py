@@ -186,7 +186,9 @@ class RayExecutor:
         if not ray.is_initialized():
             # The nodes see this shell's MATA_* settings (model files, caches, shared data).
             env = {k: v for k, v in os.environ.items() if k.startswith("MATA_")}
-            ray.init(address=self.address, num_cpus=None if self.address else self.cpus,
+            # no address: a cluster of its own ("local"; None would join one that `ray start` left
+            # running on this machine, and refuse num_cpus there)
+            ray.init(address=self.address or "local", num_cpus=None if self.address else self.cpus,
                      runtime_env={"env_vars": env} if env else None,
                      include_dashboard=False, logging_level="warning", log_to_driver=False)
             self.started = True

@@ -105,7 +105,10 @@ def read_predictions(path: Path) -> np.ndarray:
     for i, line in enumerate(text.splitlines(), start=1):
         parts = line.replace(",", " ").split()
         if parts and not _are_numbers(parts, 4):
-            raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}")
+            vot = (" (a line of one 0, 1 or 2 is the VOT toolkit's reset-based output: 1 initialised, 2 failed, "
+                   "0 skipped; mata-eval scores one-pass results only, no EAO: docs/decisions/protocols.md)"
+                   if parts[0] in ("0", "1", "2") and len(parts) == 1 else "")
+            raise ValueError(f"{path}:{i}: expected 4 numbers x,y,w,h, got {line!r}{vot}")
     raise ValueError(f"{path}: expected 4 numbers x,y,w,h per line")  # not reached: a line is bad
 
 

@@ -334,9 +334,12 @@ def evaluate_results(
     layout: str = "auto",
     name: str | None = None,
     groups: Mapping[str, Iterable[str]] | None = None,
+    dataset: str | None = None,
 ) -> RunScores:
     """Score any results folder (no file is written). Sequences without results are listed in
-    ``missing``; failed sequences of a mata run folder in ``failures``."""
+    ``missing``; failed sequences of a mata run folder in ``failures``. ``dataset``: the name
+    of the dataset plugin that loaded ``sequences`` (recorded in ``meta``; a mata run folder's
+    manifest names its own)."""
     d = Path(results_dir)
     metrics.get_profile(profile)  # fail early on a bad name
     sequences = list(sequences)
@@ -353,17 +356,21 @@ def evaluate_results(
                  f"-o {'DIR' if moved else shlex.quote(str(d.resolve().parent))} --runs {run} --force --sequences")
         move = f"move this folder into an empty folder DIR as DIR/{run} (the run writes there), then " if moved else ""
         unscorable = {k: f"{why}; to run it again: {move}{again} {k}" for k, why in unscorable.items()}
-    dataset = (manifest.get("config") or {}).get("dataset")
+    run_dataset = (manifest.get("config") or {}).get("dataset")
     scored = [s for s in sequences if s.name in per_seq]
     meta = {
         "experiment": manifest.get("experiment"),
         "config_hash": manifest.get("config_hash"),
-        "dataset": dataset.get("name") if isinstance(dataset, dict) else None,
+        "dataset": run_dataset.get("name") if isinstance(run_dataset, dict) else dataset,
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
         # got10k layout: sequences with more repetitions than the first, the one scored
         "repetitions_left": sorted(k for k in per_seq if (d / k / f"{k}_002.txt").is_file()) if layout == "got10k"
         else [],
         "unscorable": unscorable,   # sequence -> why its results cannot be scored (counted as failed)
+        # result files of another length than their sequence, which the profile cut or padded
+        # (got10k, pytracking; the default profile refuses them): sequence -> [lines, frames]
+        "length_fitted": {s.name: [len(found[s.name].boxes), len(s)] for s in scored
+                          if len(found[s.name].boxes) != len(s)},
         "bad_frames": {k: v for k, v in results.read_bad_frames(d).items() if k in per_seq} if layout == "mata" else {},
         # what a report compares: the ground truth of each sequence scored or found unscorable (an
         # annotation file fixed later makes the unscorable one scorable)

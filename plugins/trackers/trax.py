@@ -258,7 +258,12 @@ class TraxTracker:
         except subprocess.TimeoutExpired:
             self._fail(f"{what} failed: {error}")
         cause = f"killed by signal {-code}" if code < 0 else f"exited with code {code}"
-        self._fail(f"the tracker {cause} during {what} ({error})")
+        # a C/C++ server on libtrax's single-object calls answers the object list every client of
+        # vot-trax 4 sends with "Invalid mode", and ends the session as if it had finished
+        hint = ("; a tracker that ends the session at initialize may use libtrax's single-object calls "
+                "(trax_server_wait_sot / trax_server_reply_sot): use trax_server_wait_mot / trax_server_reply_mot "
+                "(docs/decisions/trackers.md)") if what == "initialize" and code == 0 else ""
+        self._fail(f"the tracker {cause} during {what} ({error}){hint}")
 
     # --- the Tracker interface --------------------------------------------------------------
 

@@ -4,7 +4,10 @@ happens when a tracker misbehaves. Each answer is a box of the initial size cent
 CRC-32 of the frame's BGR bytes as the property ``crc``.
 
     python scripted_server.py [--images path|memory] [--confidence C] [--pid-file F]
-                              [--crash-at K] [--hang-at K] [--special-at K]
+                              [--crash-at K] [--hang-at K] [--special-at K] [--exit-at-init]
+
+``--exit-at-init`` ends cleanly at ``initialize`` without an answer, as a C server on libtrax's
+single-object calls does when it receives the object list.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ def main() -> None:
     ap.add_argument("--crash-at", type=int)
     ap.add_argument("--hang-at", type=int)
     ap.add_argument("--special-at", type=int)
+    ap.add_argument("--exit-at-init", action="store_true")
     args = ap.parse_args()
     if args.pid_file:
         with open(args.pid_file, "w") as f:
@@ -46,6 +50,8 @@ def main() -> None:
             if args.confidence is not None:
                 props["confidence"] = args.confidence
             if request.type == TraxStatus.INITIALIZE:
+                if args.exit_at_init:
+                    sys.exit(0)
                 box = request.objects[0][0].bounds()
                 server.status([(Rectangle.create(*box), props)])
                 continue
