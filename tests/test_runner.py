@@ -279,6 +279,41 @@ def test_a_run_that_kills_its_worker_fails_only_itself_not_the_runs_sharing_its_
     assert set(outcomes.values()) == {"done"} and len(outcomes) == 9
 
 
+def _pid_task(exp, task):
+    """A task's results, as a worker of the pool returns them: each run's process id; the task
+    of sequence 'kill' kills its process while the task beside it runs."""
+    import time
+
+    from mata_eval.run.tasks import SequenceResult
+
+    if task.sequence == "kill":
+        time.sleep(0.05)
+        os.kill(os.getpid(), 9)
+    time.sleep(0.3)
+    return [SequenceResult(run, task.sequence, reason=str(os.getpid())) for run in task.runs]
+
+
+def test_a_dead_worker_retries_alone_only_the_tasks_that_were_running(monkeypatch):
+    """QA pass 15c: after one worker died, every task still queued ran one run per process, one at
+    a time (half the speed, no frame shared between runs). Only the tasks running when it died
+    run alone; those that had not started go to a new pool of as many workers, whole."""
+    import multiprocessing
+
+    from mata_eval.run import executors
+    from mata_eval.run.tasks import Task
+
+    if multiprocessing.get_start_method() != "fork":
+        pytest.skip("the fake task function reaches the workers only through fork")
+    monkeypatch.setattr(executors, "run_task", _pid_task)
+    tasks = [Task(i, name, 10, ("a", "b")) for i, name in enumerate(["s0", "s1", "kill", "s3", "s4", "s5", "s6"])]
+    got: dict[tuple[str, str], str] = {}
+    executors.LocalExecutor(2).run(None, tasks, lambda task, res: got.update({(r.run, r.sequence): r.reason for r in res}))
+    assert "worker process died" in got[("a", "kill")] and "worker process died" in got[("b", "kill")]
+    whole = [s for s in ("s0", "s1", "s3", "s4", "s5", "s6") if got[("a", s)] == got[("b", s)]]
+    # s0, s1 finished before (whole); kill and the task beside it ran alone; s4-s6 queued: whole
+    assert {"s0", "s1", "s4", "s5", "s6"} <= set(whole), got
+
+
 def test_rewriting_a_sequence_makes_the_run_scores_stale(tmp_path):
     """`run --force --no-report` then `report`: the report must not show the scores of the old
     predictions, so a run whose sequence is rewritten loses its scores.json (and is scored again

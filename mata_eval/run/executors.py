@@ -66,10 +66,16 @@ def one_thread_per_process() -> None:
     cv2.setNumThreads(1)
 
 
-def _local_worker(parent: int | None) -> None:
+#: in a local worker: the queue on which it says which task it starts (:func:`_run_marked`)
+_STARTED: multiprocessing.queues.SimpleQueue | None = None
+
+
+def _local_worker(parent: int | None, started: multiprocessing.queues.SimpleQueue | None = None) -> None:
     """A local worker ignores Ctrl-C (the driver stops it: SIGINT to the process group must not
     fail the sequence it runs) and dies with its parent (process id ``parent``: the driver, or
     None under ``forkserver``, whose server process ends with the driver)."""
+    global _STARTED
+    _STARTED = started
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     die_with_parent(parent)
@@ -94,6 +100,14 @@ def _opencv_threads_stopped() -> Iterator[None]:
         cv2.setNumThreads(n)
 
 
+def _run_marked(exp: Experiment, task: Task, key: int) -> list[SequenceResult]:
+    """:func:`run_task`, after saying on the pool's queue that task ``key`` started (a
+    SimpleQueue writes at once, so the mark is out before the worker can die)."""
+    if _STARTED is not None:
+        _STARTED.put(key)
+    return run_task(exp, task)
+
+
 class LocalExecutor:
     """Tasks in ``jobs`` worker processes on this machine (in this process when ``jobs`` is 1)."""
 
@@ -112,20 +126,29 @@ class LocalExecutor:
                 done(task, run_task(exp, task))
                 stop.check()
             return
-        # A worker killed by the OS breaks the pool and every task in flight with it: rerun their
-        # runs one process each, which finds the run that kills its process; the others complete.
-        lost, _ = self._pool(exp, tasks, self.workers, done)
-        for task in lost:
+        # A worker killed by the OS breaks the pool and fails every task not finished: those that
+        # had not started go to a new pool of as many workers; those that had, one of which killed
+        # its worker, run again one run per process, which finds the run that kills its process.
+        pending, suspects = tasks, []
+        while pending:
+            lost, started, _ = self._pool(exp, pending, self.workers, done)
+            began = {id(task) for task in started}
+            running = [task for task in lost if id(task) in began] or lost   # (no mark came: all alone)
+            suspects += running
+            pending = [task for task in lost if id(task) not in began] if running is not lost else []
+        for task in suspects:
             for run in task.runs:
                 alone = dataclasses.replace(task, runs=(run,))
-                lost_again, exitcodes = self._pool(exp, [alone], 1, done)
+                lost_again, _, exitcodes = self._pool(exp, [alone], 1, done)
                 if lost_again:
                     done(alone, failed(alone, worker_died(exitcodes)))
 
     @staticmethod
-    def _pool(exp: Experiment, tasks: list[Task], jobs: int, done: Done) -> tuple[list[Task], list[int]]:
-        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool and the
-        non-zero exit codes of its workers (how the one that broke it died). A stop
+    def _pool(exp: Experiment, tasks: list[Task], jobs: int,
+              done: Done) -> tuple[list[Task], list[Task], list[int]]:
+        """Run ``tasks`` in ``jobs`` processes; returns the tasks lost to a broken pool, the tasks
+        that started (a lost one among them was running when its worker died) and the non-zero
+        exit codes of the workers (how the one that broke the pool died). A stop
         signal is taken between two waits (:func:`stop.deferred`), never inside the pool's own
         code. On any exception (Ctrl-C, SIGTERM above all) the queued tasks are cancelled and the
         workers killed, so that it propagates at once (leaving the pool would wait for every
@@ -133,21 +156,24 @@ class LocalExecutor:
         handler until its initializer resets it, and would swallow the signal and live on while
         the pool's shutdown waits for the tasks queued to it. A worker's SIGTERM is the default
         action anyway, and results are written atomically."""
-        lost = []
+        lost, marks = [], set()
         context = multiprocessing.get_context()
         method = context.get_start_method()
         parent = None if method == "forkserver" else os.getpid()
+        started = context.SimpleQueue()   # read while waiting: a full pipe would block the workers
         with stop.deferred(), (_opencv_threads_stopped() if method == "fork" else contextlib.nullcontext()):
             pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context, initializer=_local_worker,
-                                       initargs=(parent,))
+                                       initargs=(parent, started))
             # pid -> process, for how a dead one ended (no public handle; shutdown drops the attribute,
             # a Python without it loses only the exit code in the failure message)
             workers = getattr(pool, "_processes", None)
             try:
-                futures = {pool.submit(run_task, exp, task): task for task in tasks}
+                futures = {pool.submit(_run_marked, exp, task, i): task for i, task in enumerate(tasks)}
                 waiting = set(futures)
                 while waiting:
                     finished, waiting = wait(waiting, timeout=stop.POLL_S, return_when=FIRST_COMPLETED)
+                    while not started.empty():
+                        marks.add(started.get())
                     stop.check()
                     for fut in finished:
                         try:
@@ -162,7 +188,11 @@ class LocalExecutor:
                 raise
             finally:  # the pool's thread sees its workers gone, fails what was queued, and ends
                 pool.shutdown(wait=True, cancel_futures=True)
-        return lost, [w.exitcode for w in (workers or {}).values() if w.exitcode] if lost else []
+        while not started.empty():
+            marks.add(started.get())
+        started.close()
+        return (lost, [tasks[i] for i in sorted(marks)],
+                [w.exitcode for w in (workers or {}).values() if w.exitcode] if lost else [])
 
 
 class RayExecutor:
