@@ -13,6 +13,7 @@ import dataclasses
 import multiprocessing
 import os
 import signal
+import threading
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterator, Protocol
@@ -216,12 +217,18 @@ class RayExecutor:
         if not ray.is_initialized():
             # The nodes see this shell's MATA_* settings (model files, caches, shared data).
             env = {k: v for k, v in os.environ.items() if k.startswith("MATA_")}
+            # ray.init installs its own SIGTERM handler (a traceback, exit 1): the run's come back
+            handlers = {s: signal.getsignal(s) for s in stop.STOP_SIGNALS}
             # no address: a cluster of its own ("local"; None would join one that `ray start` left
             # running on this machine, and refuse num_cpus there)
             ray.init(address=self.address or "local", num_cpus=None if self.address else self.cpus,
                      runtime_env={"env_vars": env} if env else None,
                      include_dashboard=False, logging_level="warning", log_to_driver=False)
             self.started = True
+            if threading.current_thread() is threading.main_thread():
+                for s, handler in handlers.items():
+                    if handler is not None:
+                        signal.signal(s, handler)
         self.workers = max(1, int(ray.cluster_resources().get("CPU", 1)))
         return self
 
@@ -235,6 +242,13 @@ class RayExecutor:
         remote = ray.remote(num_cpus=1, max_retries=1)(_ray_task)
         exp_ref = ray.put(exp)
         pending = {remote.remote(exp_ref, task, os.getcwd()): task for task in tasks}
+        # a stop signal is taken between two waits: raised inside ray.wait's compiled code it
+        # came out as a SystemError traceback, exit status 1
+        with stop.deferred():
+            self._wait(pending, done)
+
+    def _wait(self, pending: dict, done: Done) -> None:
+        ray = self.ray
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1, timeout=stop.POLL_S)
