@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import time
 
 import cv2
 import numpy as np
@@ -522,3 +523,59 @@ def test_a_killed_generation_leaves_no_worker_and_its_folder_is_removed_by_the_n
     elsewhere.mkdir()
     synth.write_suite(root, specs=synth.suite_specs(1, 3, W, H), jobs=1)
     assert not left[0].exists() and alive.exists() and elsewhere.exists()
+
+
+def test_processes_that_need_the_suite_at_once_render_it_once(tmp_path):
+    """QA pass 15c: the task workers of a run (of every node sharing the cache), or two drivers,
+    each rendered the whole suite at once. One renders it; the others wait and read it."""
+    import subprocess
+    import sys
+
+    import filelock
+
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
+    from mata_eval.params import build_params
+
+    values = {"n_sequences": 1, "n_frames": 3, "width": W, "height": H, "seed": 5, "jobs": 1}
+    env = {**os.environ, "MATA_EVAL_CACHE": str(tmp_path / "cache")}
+    os.environ["MATA_EVAL_CACHE"], before = str(tmp_path / "cache"), os.environ.get("MATA_EVAL_CACHE")
+    try:
+        root = SyntheticDataset(build_params(SyntheticDataset.Params, values)).root
+    finally:
+        os.environ.pop("MATA_EVAL_CACHE") if before is None else os.environ.update(MATA_EVAL_CACHE=before)
+    script = ("from mata_eval.data.datasets.synthetic import SyntheticDataset\n"
+              "from mata_eval.params import build_params\n"
+              f"print(len(SyntheticDataset(build_params(SyntheticDataset.Params, {values!r})).sequences()))\n")
+    root.parent.mkdir(parents=True)
+    logs = [tmp_path / f"err{i}.txt" for i in range(2)]
+    with filelock.FileLock(str(root.parent / f".{root.name}.lock")):   # both start while it is held
+        procs = [subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE,
+                                  stderr=log.open("w"), text=True) for log in logs]
+        deadline = time.monotonic() + 60   # until both wait, or (without the lock) render or end
+        while (time.monotonic() < deadline and not all("waiting" in log.read_text() for log in logs)
+               and not any(root.parent.glob(".*.tmp-*")) and not all(p.poll() is not None for p in procs)):
+            time.sleep(0.1)
+    outs = [p.communicate(timeout=120)[0] for p in procs]
+    errs = [log.read_text() for log in logs]
+    assert [o.strip() for o in outs] == ["1", "1"], (outs, errs)
+    assert sum(line.startswith("generating the synthetic suite") for e in errs for line in e.splitlines()) == 1, errs
+    assert all("waiting for another process generating" in e for e in errs), errs
+
+
+def test_a_cache_that_cannot_be_written_says_what_to_change(tmp_path, monkeypatch):
+    """QA pass 15c: a read-only cache gave the bare OSError of a temporary folder."""
+    import errno
+
+    from mata_eval.data.datasets.annotations import DatasetError
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
+    from mata_eval.params import build_params
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system", str(tmp_path / "x"))
+
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(synth, "write_suite", read_only)
+    ds = SyntheticDataset(build_params(SyntheticDataset.Params, {"n_sequences": 1, "n_frames": 3, "width": W,
+                                                                 "height": H}))
+    with pytest.raises(DatasetError, match="cannot write the suite into .*Read-only file system.*MATA_EVAL_CACHE"):
+        ds.sequences()

@@ -8,12 +8,15 @@ would be. Each sequence's true inter-frame homographies are in ``meta["homograph
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Iterator, Literal
+
+import filelock
 
 from ...core.hooks import hookimpl
 from ...core.params import param
@@ -133,19 +136,45 @@ class SyntheticDataset:
         root = self.root
         info = read_suite_info(root)
         if info is None:
-            g = self.generation
-            print(f"generating the synthetic suite ({g['n_sequences']} sequences x {g['n_frames']} frames, "
-                  f"{g['width']}x{g['height']}) into {root} (first use only)", file=sys.stderr, flush=True)
             try:
-                write_suite(root, **g, jobs=self.params.jobs, progress=True)
+                with self._generating(root):   # one process renders it, the others wait for it
+                    if read_suite_info(root) is None:
+                        g = self.generation
+                        print(f"generating the synthetic suite ({g['n_sequences']} sequences x {g['n_frames']} "
+                              f"frames, {g['width']}x{g['height']}) into {root} (first use only)",
+                              file=sys.stderr, flush=True)
+                        write_suite(root, **g, jobs=self.params.jobs, progress=True)
             except FileExistsError:
-                info = read_suite_info(root)  # another process finished first: use its suite
-                if info is None:
+                if read_suite_info(root) is None:   # (else another process finished first: its suite)
                     raise DatasetError(f"dataset synthetic: {root} exists and is not a synthetic suite; "
                                        "choose another root") from None
+            except OSError as exc:   # a read-only or full cache
+                raise DatasetError(f"dataset synthetic: cannot write the suite into {root.parent} ({exc.strerror or exc}): "
+                                   "set MATA_EVAL_CACHE to a writable folder, or root: to a folder holding a "
+                                   "generated suite") from None
             info = read_suite_info(root)
         self._check_suite(root, info)
         return root
+
+    @staticmethod
+    @contextlib.contextmanager
+    def _generating(root: Path) -> Iterator[None]:
+        """Held while generating the suite at ``root``: the processes of a run (the task workers of
+        every node sharing the cache, several drivers) would each render all of it at once."""
+        import sys
+
+        root.parent.mkdir(parents=True, exist_ok=True)
+        lock = filelock.FileLock(str(root.parent / f".{root.name}.lock"))
+        try:
+            lock.acquire(timeout=0)
+        except filelock.Timeout:
+            print(f"waiting for another process generating the synthetic suite into {root}", file=sys.stderr,
+                  flush=True)
+            lock.acquire()
+        try:
+            yield
+        finally:
+            lock.release()
 
     def sequences(self) -> list[Sequence]:
         return read_suite(self.ensure(), self.params.sequences)
