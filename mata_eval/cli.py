@@ -218,6 +218,23 @@ def _run_manifest(results_dir: str, dataset: str) -> dict[str, Any]:
     return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
 
 
+def _runs_own_dataset(manifest: dict[str, Any], root: str | None, sets: Mapping[str, Any]) -> bool:
+    """Whether ``--root`` and ``--set`` leave the dataset as the run folder's ``manifest`` has
+    it (empty: another dataset), so that scores.json written there describes the run."""
+    ds = (manifest.get("config") or {}).get("dataset")
+    if not isinstance(ds, dict):
+        return False
+    cwd = Path(manifest.get("cwd") or ".")
+    given = {**sets, **({} if root is None else {"root": root})}
+    for key, value in given.items():
+        have = ds.get(key)
+        if key in ("root", "annotations") and isinstance(value, str) and isinstance(have, str):
+            value, have = Path(value).resolve(), (cwd / have).resolve()
+        if value != have:
+            return False
+    return True
+
+
 def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -> list:
     """``seqs`` with the run's occlusion augmentation (its manifest's ``occlusion`` and seed),
     which adds the AOC attribute and the occluded frames: scored without it, a run made with
@@ -261,7 +278,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
                   f"{', '.join(same)} names more than one folder; score those one at a time", file=sys.stderr)
             return 2
     try:
-        sets = parse_key_values(args.set or ())
+        sets = given = parse_key_values(args.set or ())
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
@@ -293,7 +310,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
                     run_seqs = _as_the_run_saw_them(seqs, results_dir, manifests[results_dir].get("config", {}))
                 # (not saved while a run writes the folder: meta["unsaved"], said under the table)
                 scores = evaluate_run(Path(results_dir), run_seqs, args.profile, save=False)
-                if not args.no_save and "unsaved" not in scores.meta:
+                own = _runs_own_dataset(manifests[results_dir], args.root, given)
+                if not own and not args.no_save:   # (a report would show these numbers as the run's)
+                    print(f"{results_dir}: scores.json not written there: scored on another dataset, or other "
+                          f"dataset parameters, than the run's (--output DIR writes it elsewhere)")
+                if own and not args.no_save and "unsaved" not in scores.meta:
                     try:
                         print(f"wrote {save_scores(results_dir, scores)}")
                     except OSError as exc:

@@ -11,6 +11,7 @@ The tracker `Stay` returns the box it started from, and each sequence's target s
 from __future__ import annotations
 
 import json
+import re
 import textwrap
 
 import cv2
@@ -306,3 +307,18 @@ def test_a_copied_run_folder_is_reported_from_itself(workdir, tmp_path):
     shutil.rmtree(run)                           # moved
     assert load_scores(copy).path == scores_for(copy).path == str(copy.resolve())
     assert main(["report", str(copy)]) == 0
+
+
+def test_eval_of_a_run_on_other_dataset_parameters_leaves_its_scores_json(workdir, capsys):
+    """QA pass 15c: `eval RUN --set sequences=[a]` wrote a one-sequence scores.json into the run
+    folder, which `report` then showed as the run's (Seqs 1) with b called "no sequence of the
+    dataset". Only the run's own dataset writes it there."""
+    run = workdir / "out" / "exp"
+    assert main(["eval", str(run), "--dataset", "folder", "--root", "data", "--set", "sequences=[a]"]) == 0
+    assert f"{run}: scores.json not written there: scored on another dataset" in capsys.readouterr().out
+    assert not (run / "scores.json").exists()
+    assert main(["report", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^exp\s+2\s", out, re.M) and "no sequence" not in out
+    assert main(["eval", str(run), "--dataset", "folder", "--root", str(workdir / "data")]) == 0   # the same root
+    assert "not written" not in capsys.readouterr().out and (run / "scores.json").is_file()
