@@ -165,11 +165,16 @@ def cmd_validate(args: argparse.Namespace) -> int:
     checked = _preflight(exp, args.runs, args.debug, args.sequences)
     if checked is None:
         return 2
-    from .run.runner import profile_warnings
+    from .run.runner import ResultsConflict, profile_warnings, refuse_conflicts
 
     for spec in checked.runs:
         for line in profile_warnings(spec):
             print(f"warning: {spec.name}: {line}")
+    try:   # what `run` refuses in the output folder (QA pass 15c: said ready, then refused)
+        refuse_conflicts(exp, checked.runs)
+    except ResultsConflict as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
                                                           if checked.skipped else ""))
     return 0

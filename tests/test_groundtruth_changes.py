@@ -322,3 +322,31 @@ def test_eval_of_a_run_on_other_dataset_parameters_leaves_its_scores_json(workdi
     assert re.search(r"^exp\s+2\s", out, re.M) and "no sequence" not in out
     assert main(["eval", str(run), "--dataset", "folder", "--root", str(workdir / "data")]) == 0   # the same root
     assert "not written" not in capsys.readouterr().out and (run / "scores.json").is_file()
+
+
+def test_changed_runs_are_all_refused_before_loading_and_validate_says_so(workdir, capsys):
+    """QA pass 15c: a changed parameter refused one run (another was affected too), suggested a
+    --force that redid every run, was found only after the dataset was loaded (a synthetic suite
+    rendered for minutes), and `validate` said the runs were ready."""
+    (workdir / "exp.yaml").write_text("output: out\ndataset: {name: folder, root: data}\n"
+                                      "tracker: {name: 'gt_change_trackers.stay:Stay'}\n"
+                                      "matrix:\n  protocol:\n    one: {name: dsp, n: 2}\n    two: {name: dsp, n: 3}\n"
+                                      "    three: {name: ltp}\n")
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    text = (workdir / "exp.yaml").read_text()
+    (workdir / "exp.yaml").write_text(text.replace("n: 2", "n: 4").replace("n: 3", "n: 5"))
+    capsys.readouterr()
+    assert main(["validate", "exp.yaml"]) == 2
+    assert "(1 more run(s) refused: two); `--force --runs one two` redoes only these runs" in capsys.readouterr().err
+    import mata_eval.run.runner as runner
+
+    loaded = []
+    original = runner.load_sequences
+    runner.load_sequences = lambda spec: loaded.append(spec.name) or original(spec)
+    try:
+        assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 2
+    finally:
+        runner.load_sequences = original
+    assert "`--force --runs one two`" in capsys.readouterr().err and loaded == []
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--force", "--runs", "one", "two"]) == 0
+    assert main(["validate", "exp.yaml"]) == 0

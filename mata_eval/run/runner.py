@@ -171,13 +171,53 @@ def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: 
     return record
 
 
+def _inputs(spec: RunSpec) -> dict[str, Any]:
+    """What a run reads beyond its configuration, as its manifest records it."""
+    return json.loads(json.dumps({"model_files": model_files(spec), "preset_values": preset_values(spec)}))
+
+
+def _conflict(exp: Experiment, spec: RunSpec, old: dict[str, Any] | None, inputs: dict[str, Any]) -> str | None:
+    """Why the run folder (its manifest ``old``) holds results this run may not resume, or None."""
+    out = run_dir(exp, spec)
+    redo = f"rerun with --force to replace them, or change `output` in {exp.path}"
+    if old is None:
+        return (f"{out} holds results but no {results.MANIFEST}: they cannot be matched to this configuration; "
+                f"delete them, {redo}") if results.holds_results(out) else None
+    if old.get("config_hash") != spec.config_hash:
+        return (f"{out} holds results of a different configuration ({_change(old, spec)}config hash "
+                f"{old.get('config_hash')} != {spec.config_hash}); {redo}")
+    changed = _read_beyond_the_configuration(old, inputs)
+    return None if changed is None else f"{out} holds results {changed}; {redo}"
+
+
+def refuse_conflicts(exp: Experiment, specs: list[RunSpec]) -> None:
+    """Before any sequence is loaded (a synthetic suite rendered for minutes): the runs whose
+    folders hold results they may not resume, every one of them in one error, and how to redo
+    only those (``--force`` alone redoes every selected run)."""
+    refused: list[tuple[str, str]] = []
+    for spec in specs:
+        try:
+            why = _conflict(exp, spec, results.read_manifest(run_dir(exp, spec)), _inputs(spec))
+        except results.CorruptFile as exc:
+            why = str(exc)
+        if why is not None:
+            refused.append((spec.name, why))
+    if not refused:
+        return
+    names = " ".join(name for name, _ in refused)
+    also = f" ({len(refused) - 1} more run(s) refused: {' '.join(n for n, _ in refused[1:])})" if len(refused) > 1 else ""
+    only = f"; `--force --runs {names}` redoes only {'these runs' if len(refused) > 1 else 'this run'}" \
+        if len(specs) > len(refused) else ""
+    raise ResultsConflict(f"{refused[0][1]}{also}{only}")
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
                     only: list[str] | None = None) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
     to mix results of another configuration, of other model files or preset values, or made
     on other ground truth (``only``: the sequences ``force`` redoes, default all)."""
     out = run_dir(exp, spec)
-    inputs = json.loads(json.dumps({"model_files": model_files(spec), "preset_values": preset_values(spec)}))
+    inputs = _inputs(spec)
     try:
         old = results.read_manifest(out)
     except results.CorruptFile:
@@ -185,24 +225,10 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise
         old = None
         results.clear_run(out)   # of a configuration no one can tell: replaced, as --force asks
-    if old is None and results.holds_results(out):
+    if (why := _conflict(exp, spec, old, inputs)) is not None:
         if not force:
-            raise ResultsConflict(f"{out} holds results but no {results.MANIFEST}: they cannot be matched to this "
-                                  f"configuration; delete them, rerun with --force to replace them, or change "
-                                  f"`output` in {exp.path}")
-        results.clear_run(out)
-    if old is not None and old.get("config_hash") != spec.config_hash:
-        if not force:
-            raise ResultsConflict(
-                f"{out} holds results of a different configuration ({_change(old, spec)}config hash "
-                f"{old.get('config_hash')} != {spec.config_hash}); rerun with --force to replace them, "
-                f"or change `output` in {exp.path}")
+            raise ResultsConflict(why)
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
-    elif old is not None and (changed := _read_beyond_the_configuration(old, inputs)) is not None:
-        if not force:
-            raise ResultsConflict(f"{out} holds results {changed}; rerun with --force to replace them, "
-                                  f"or change `output` in {exp.path}")
-        results.clear_run(out)
     inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
     try:
         _write_manifest(out, exp, spec, inputs, notes)
@@ -363,6 +389,8 @@ def run_experiment(
     specs = select_runs(exp, only)
     if jobs is not None and jobs < 1:
         raise UserError(f"jobs: expected 1 or more worker processes, got {jobs}")
+    if not force:
+        refuse_conflicts(exp, specs)
     if sequences and specs:
         known_seqs = {s.name for spec in specs for s in load_sequences(spec)}
         if set(sequences) - known_seqs:
