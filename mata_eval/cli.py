@@ -107,7 +107,15 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} "
                   f"sequence{'s' if occ.n_sequences != 1 else ''}: "
                   f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
-    plots = plot_curves(scores, exp.output / REPORT_FOLDER)
+    # the experiment's plots also keep its runs this call left out (--runs) that have results: they
+    # showed the selected runs alone, and two drivers on disjoint --runs replaced each other's
+    from .run.results import MANIFEST, holds_results
+    from .run.runner import run_dir
+
+    others = [r.name for r in exp.runs if r.name not in names and (run_dir(exp, r) / MANIFEST).is_file()
+              and holds_results(run_dir(exp, r))]
+    plotted = evaluate_experiment(exp, only=names + others) if others else scores
+    plots = plot_curves(plotted, exp.output / REPORT_FOLDER)
     for p in plots:
         print(f"plot: {p}")
     _print_incomplete(scores)   # failed, unscorable, without results (--sequences), ...

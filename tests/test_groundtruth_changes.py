@@ -350,3 +350,19 @@ def test_changed_runs_are_all_refused_before_loading_and_validate_says_so(workdi
     assert "`--force --runs one two`" in capsys.readouterr().err and loaded == []
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--force", "--runs", "one", "two"]) == 0
     assert main(["validate", "exp.yaml"]) == 0
+
+
+def test_run_runs_keeps_the_experiments_other_runs_in_its_plots(workdir, monkeypatch):
+    """QA pass 15c: `run --runs one` rewrote the experiment's plots with run one alone (two
+    drivers on disjoint --runs replaced each other's plots)."""
+    import mata_eval.report.plots as plots
+
+    (workdir / "exp.yaml").write_text("output: out\ndataset: {name: folder, root: data}\n"
+                                      "tracker: {name: 'gt_change_trackers.stay:Stay'}\n"
+                                      "matrix:\n  protocol:\n    one: {name: ltp}\n    two: {name: dsp, n: 2}\n"
+                                      "    three: {name: dsp, n: 3}\n")
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--runs", "one", "two"]) == 0
+    plotted = []
+    monkeypatch.setattr(plots, "plot_curves", lambda runs, out: plotted.append([r.name for r in runs]) or [])
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--runs", "one"]) == 0
+    assert plotted == [["one", "two"]]   # three has no results: not plotted
