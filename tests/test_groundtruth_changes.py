@@ -366,3 +366,22 @@ def test_run_runs_keeps_the_experiments_other_runs_in_its_plots(workdir, monkeyp
     monkeypatch.setattr(plots, "plot_curves", lambda runs, out: plotted.append([r.name for r in runs]) or [])
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--runs", "one"]) == 0
     assert plotted == [["one", "two"]]   # three has no results: not plotted
+
+
+def test_a_resume_under_another_setup_says_so_and_keeps_the_earlier_one(workdir, monkeypatch, capsys):
+    """QA pass 15c: a run resumed with MATA_EVAL_EKF_BACKEND=numpy (or other package versions)
+    rewrote the manifest as if every kept result had been made that way."""
+    run = workdir / "out" / "exp"
+    first = json.loads((run / "manifest.json").read_text())
+    monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "numpy")
+    capsys.readouterr()
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    out = capsys.readouterr().out
+    assert ("warning: exp: the results kept in" in out and "were made with another setup (MATA_EVAL_EKF_BACKEND "
+            f"{first['environment'].get('MATA_EVAL_EKF_BACKEND', '(none)')} -> numpy)" in out)
+    manifest = json.loads((run / "manifest.json").read_text())
+    assert manifest["environment"]["MATA_EVAL_EKF_BACKEND"] == "numpy"
+    assert manifest["earlier"] == [{k: first[k] for k in ("versions", "environment", "git_commit", "machine")}]
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0   # the same setup again: nothing
+    assert "another setup" not in capsys.readouterr().out
+    assert json.loads((run / "manifest.json").read_text())["earlier"] == manifest["earlier"]

@@ -211,8 +211,33 @@ def refuse_conflicts(exp: Experiment, specs: list[RunSpec]) -> None:
     raise ResultsConflict(f"{refused[0][1]}{also}{only}")
 
 
+def _setup() -> dict[str, Any]:
+    """What this process runs with beyond the configuration (versions, MATA_* variables, commit,
+    machine), as the manifest records it."""
+    return {"versions": results.package_versions(),
+            # the variables that choose what runs (e.g. MATA_EVAL_EKF_BACKEND: numba or numpy tick)
+            "environment": {k: v for k, v in sorted(os.environ.items()) if k.startswith("MATA_")},
+            "git_commit": results.git_commit(), "machine": results.machine()}
+
+
+def _setup_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """How the setup ``new`` differs from the one a manifest ``old`` recorded (the command line
+    aside), e.g. ``numpy 1.26.4 -> 2.1.0``."""
+    changes = []
+    for key in ("versions", "environment"):
+        a, b = old.get(key) or {}, new.get(key) or {}
+        changes += [f"{k} {a.get(k, '(none)')} -> {b.get(k, '(none)')}" for k in sorted(set(a) | set(b))
+                    if a.get(k) != b.get(k)]
+    if old.get("git_commit") != new.get("git_commit"):
+        changes.append(f"commit {old.get('git_commit')} -> {new.get('git_commit')}")
+    strip = lambda m: {k: v for k, v in (m or {}).items() if k != "argv"}  # noqa: E731
+    if strip(old.get("machine")) != strip(new.get("machine")):
+        changes.append("machine")
+    return changes
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
-                    only: list[str] | None = None) -> Path:
+                    only: list[str] | None = None, log: Callable[[str], None] | None = None) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
     to mix results of another configuration, of other model files or preset values, or made
     on other ground truth (``only``: the sequences ``force`` redoes, default all)."""
@@ -230,8 +255,18 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise ResultsConflict(why)
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
     inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
+    setup = _setup()
+    if old is not None and results.holds_results(out):   # resumed: the kept results' setup stays on record
+        setup["earlier"] = list(old.get("earlier") or [])
+        changes = _setup_changes(old, setup)
+        if changes:
+            setup["earlier"].append({k: old.get(k) for k in ("versions", "environment", "git_commit", "machine")})
+            if log is not None:
+                log(f"warning: {spec.name}: the results kept in {out} were made with another setup "
+                    f"({', '.join(changes[:4])}{' ...' if len(changes) > 4 else ''}): they may differ from what "
+                    f"this one computes (manifest.json keeps it under 'earlier'; --force redoes them)")
     try:
-        _write_manifest(out, exp, spec, inputs, notes)
+        _write_manifest(out, exp, spec, inputs, notes, setup)
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
         kept = "the results there stay" if results.holds_results(out) else "the folder holds no results"
         raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran ({kept}: "
@@ -239,7 +274,8 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
     return out
 
 
-def _write_manifest(out: Path, exp: Experiment, spec: RunSpec, inputs: dict, notes: list[str]) -> None:
+def _write_manifest(out: Path, exp: Experiment, spec: RunSpec, inputs: dict, notes: list[str],
+                    setup: dict[str, Any]) -> None:
     results.write_manifest(out, {
         "experiment": exp.name,
         "experiment_file": str(Path(exp.path).resolve()),
@@ -253,11 +289,7 @@ def _write_manifest(out: Path, exp: Experiment, spec: RunSpec, inputs: dict, not
         "metric_profile": spec.metrics_profile,
         "timeout_s": spec.timeout_s,
         "warnings": list(notes),
-        "versions": results.package_versions(),
-        # the variables that choose what runs (e.g. MATA_EVAL_EKF_BACKEND: numba or numpy tick)
-        "environment": {k: v for k, v in sorted(os.environ.items()) if k.startswith("MATA_")},
-        "git_commit": results.git_commit(),
-        "machine": results.machine(),
+        **setup,
     })
 
 
@@ -422,7 +454,7 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
         notes = protocol_warnings(spec)
         for message in notes:
             log(f"warning: {spec.name}: {message}")
-        out = prepare_run_dir(exp, spec, force, notes, sequences)
+        out = prepare_run_dir(exp, spec, force, notes, sequences, log)
         for i, seq in enumerate(load_sequences(spec)):
             if sequences and seq.name not in sequences:
                 continue
