@@ -13,6 +13,7 @@ import dataclasses
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -219,6 +220,8 @@ class RayExecutor:
             env = {k: v for k, v in os.environ.items() if k.startswith("MATA_")}
             # ray.init installs its own SIGTERM handler (a traceback, exit 1): the run's come back
             handlers = {s: signal.getsignal(s) for s in stop.STOP_SIGNALS}
+            print(f"ray: connecting to {self.address}" if self.address else
+                  f"ray: starting a local cluster of {self.cpus or 'all'} CPU(s)", file=sys.stderr, flush=True)
             # no address: a cluster of its own ("local"; None would join one that `ray start` left
             # running on this machine, and refuse num_cpus there)
             ray.init(address=self.address or "local", num_cpus=None if self.address else self.cpus,
