@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import json
 import os
 import sys
 from pathlib import Path
@@ -107,19 +108,33 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} "
                   f"sequence{'s' if occ.n_sequences != 1 else ''}: "
                   f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
-    # the experiment's plots also keep its runs this call left out (--runs) that have results: they
-    # showed the selected runs alone, and two drivers on disjoint --runs replaced each other's
-    from .run.results import MANIFEST, holds_results
-    from .run.runner import run_dir
-
-    others = [r.name for r in exp.runs if r.name not in names and (run_dir(exp, r) / MANIFEST).is_file()
-              and holds_results(run_dir(exp, r))]
-    plotted = evaluate_experiment(exp, only=names + others) if others else scores
-    plots = plot_curves(plotted, exp.output / REPORT_FOLDER)
+    plots = plot_curves(scores + _other_runs_scores(exp, names), exp.output / REPORT_FOLDER)
     for p in plots:
         print(f"plot: {p}")
     _print_incomplete(scores)   # failed, unscorable, without results (--sequences), ...
     return 1 if failed or any(s.meta.get("unscorable") for s in scores) else 0
+
+
+def _other_runs_scores(exp: Any, names: Sequence[str]) -> list:
+    """The scores of the experiment's runs not in ``names`` (left out by --runs) whose folders
+    hold results of their configuration as the file has it now: the experiment's plots keep them
+    (they showed the selected runs alone, and two drivers on disjoint --runs replaced each
+    other's). A run that cannot be scored here is left out, with one line."""
+    from .run.results import read_manifest
+    from .run.runner import run_dir
+    from .score.evaluate import ScoresUnavailable, scores_for
+
+    others = []
+    for spec in exp.runs:
+        d = run_dir(exp, spec)
+        if spec.name in names or not any(d.glob("*.txt")):
+            continue
+        try:
+            if (read_manifest(d) or {}).get("config_hash") == spec.config_hash:
+                others.append(scores_for(d))
+        except (ScoresUnavailable, OSError, ValueError) as exc:
+            print(f"plots: {spec.name} left out ({exc})")
+    return others
 
 
 def _preflight(exp: Any, only: Sequence[str] | None, debug: bool = False,
@@ -178,11 +193,10 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for spec in checked.runs:
         for line in profile_warnings(spec):
             print(f"warning: {spec.name}: {line}")
-    try:   # what `run` refuses in the output folder (QA pass 15c: said ready, then refused)
+    try:   # what `run` refuses in the output folder without --force (QA pass 15c: said ready, then refused)
         refuse_conflicts(exp, checked.runs)
     except ResultsConflict as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        print(f"warning: run without --force refuses this: {exc}")
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
                                                           if checked.skipped else ""))
     return 0
@@ -231,21 +245,33 @@ def _run_manifest(results_dir: str, dataset: str) -> dict[str, Any]:
     return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
 
 
-def _runs_own_dataset(manifest: dict[str, Any], root: str | None, sets: Mapping[str, Any]) -> bool:
-    """Whether ``--root`` and ``--set`` leave the dataset as the run folder's ``manifest`` has
-    it (empty: another dataset), so that scores.json written there describes the run."""
+def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
+    """A dataset's resolved parameters as compared between a run's manifest and an ``eval``:
+    None dropped, ``root`` and ``annotations`` made absolute against the folder ``cwd`` they
+    are relative to, values as JSON has them."""
+    out = {k: str((cwd / v).resolve()) if k in ("root", "annotations") and isinstance(v, str) else v
+           for k, v in params.items() if v is not None}
+    return json.loads(json.dumps(out, default=str))
+
+
+def _effective_dataset(name: str, values: Mapping[str, Any], cwd: Path) -> dict[str, Any] | None:
+    """The parameters (:func:`_dataset_key`) of the dataset ``eval`` loaded, defaults included."""
+    from .core.params import build_params
+    from .core.registry import load_registry
+
+    try:
+        cls = load_registry().get("dataset", name).cls
+        return _dataset_key({"name": name, **dataclasses.asdict(build_params(cls.Params, values, ("dataset",)))}, cwd)
+    except (KeyError, ValueError, TypeError):
+        return None
+
+
+def _runs_own_dataset(manifest: dict[str, Any], effective: dict[str, Any] | None) -> bool:
+    """Whether the run folder's ``manifest`` (empty: another dataset) records the dataset
+    ``eval`` scored on (``effective``), so that scores.json written there describes the run."""
     ds = (manifest.get("config") or {}).get("dataset")
-    if not isinstance(ds, dict):
-        return False
-    cwd = Path(manifest.get("cwd") or ".")
-    given = {**sets, **({} if root is None else {"root": root})}
-    for key, value in given.items():
-        have = ds.get(key)
-        if key in ("root", "annotations") and isinstance(value, str) and isinstance(have, str):
-            value, have = Path(value).resolve(), (cwd / have).resolve()
-        if value != have:
-            return False
-    return True
+    return (isinstance(ds, dict) and effective is not None
+            and _dataset_key(ds, Path(manifest.get("cwd") or ".")) == effective)
 
 
 def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -> list:
@@ -291,12 +317,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
                   f"{', '.join(same)} names more than one folder; score those one at a time", file=sys.stderr)
             return 2
     try:
-        sets = given = parse_key_values(args.set or ())
+        sets = parse_key_values(args.set or ())
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
     all_scores = []
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
+    values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
     try:
         manifests = {d: _run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
         first = manifests[args.results_dirs[0]]
@@ -309,8 +336,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
             sets = {k: v for k, v in first["config"]["dataset"].items() if k != "name" and v is not None}
             print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
             run_cwd = lambda: in_run_cwd(first)  # noqa: E731
+            values_cwd = Path(first.get("cwd") or ".")
         with run_cwd():
             seqs = load_dataset(args.dataset, args.root, sets)
+        effective = _effective_dataset(args.dataset, {**sets, **({} if args.root is None else {"root": args.root})},
+                                       values_cwd)
     except (FileNotFoundError, ValueError, KeyError) as exc:
         print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
@@ -322,8 +352,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 with run_cwd():   # frame 0 of each sequence, for the run's occlusion augmentation
                     run_seqs = _as_the_run_saw_them(seqs, results_dir, manifests[results_dir].get("config", {}))
                 # (not saved while a run writes the folder: meta["unsaved"], said under the table)
-                scores = evaluate_run(Path(results_dir), run_seqs, args.profile, save=False)
-                own = _runs_own_dataset(manifests[results_dir], args.root, given)
+                scores = evaluate_run(Path(results_dir), run_seqs, args.profile, save=False, dataset=args.dataset)
+                own = _runs_own_dataset(manifests[results_dir], effective)
                 if not own and not args.no_save:   # (a report would show these numbers as the run's)
                     print(f"{results_dir}: scores.json not written there: scored on another dataset, or other "
                           f"dataset parameters, than the run's (--output DIR writes it elsewhere)")
@@ -1053,7 +1083,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where the sequences run: local worker processes (default) or a Ray cluster "
                         "(pip install 'mata-eval[ray]'; docs/cluster.md)")
     p.add_argument("--address", metavar="auto|ray://HOST:PORT",
-                   help="Ray cluster to use (default: start a local one with -j CPUs)")
+                   help="Ray cluster to use (default: $RAY_ADDRESS when set, else a local one of -j CPUs)")
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("validate", help="check an experiment file and what its runs need (data, models, "

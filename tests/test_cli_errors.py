@@ -3,6 +3,7 @@ exit status is non-zero when any sequence failed."""
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import textwrap
 
@@ -94,7 +95,12 @@ def test_eval_on_a_folder_it_cannot_write_says_what_to_do(tmp_path, capsys, monk
     (tmp_path / "data" / "seq").mkdir(parents=True)
     (tmp_path / "data" / "seq" / "groundtruth_rect.txt").write_text(gt)
     results.write_sequence(run, "seq", np.array([[1.0, 2, 3, 4]] * 3), "frame,scored\n0,1\n1,1\n2,1\n", "")
-    results.write_manifest(run, {"run": "r", "config": {"dataset": {"name": "folder", "root": str(tmp_path / "data")}}})
+    from mata_eval.core.registry import load_registry
+    from mata_eval.params import build_params
+
+    folder = load_registry().get("dataset", "folder").cls   # the dataset as a run's manifest resolves it
+    dataset = {"name": "folder", **dataclasses.asdict(build_params(folder.Params, {"root": str(tmp_path / "data")}))}
+    results.write_manifest(run, {"run": "r", "config": {"dataset": dataset}})
 
     def refuse(path, text):
         raise PermissionError(13, "Permission denied", str(path))

@@ -336,8 +336,9 @@ def test_changed_runs_are_all_refused_before_loading_and_validate_says_so(workdi
     text = (workdir / "exp.yaml").read_text()
     (workdir / "exp.yaml").write_text(text.replace("n: 2", "n: 4").replace("n: 3", "n: 5"))
     capsys.readouterr()
-    assert main(["validate", "exp.yaml"]) == 2
-    assert "(1 more run(s) refused: two); `--force --runs one two` redoes only these runs" in capsys.readouterr().err
+    assert main(["validate", "exp.yaml"]) == 0   # (validate has no --force: a warning)
+    assert ("warning: run without --force refuses this: " in (out := capsys.readouterr().out)
+            and "(1 more run(s) refused: two); `--force --runs one two` redoes only these runs" in out)
     import mata_eval.run.runner as runner
 
     loaded = []
@@ -349,10 +350,10 @@ def test_changed_runs_are_all_refused_before_loading_and_validate_says_so(workdi
         runner.load_sequences = original
     assert "`--force --runs one two`" in capsys.readouterr().err and loaded == []
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--force", "--runs", "one", "two"]) == 0
-    assert main(["validate", "exp.yaml"]) == 0
+    assert main(["validate", "exp.yaml"]) == 0 and "refuses" not in capsys.readouterr().out
 
 
-def test_run_runs_keeps_the_experiments_other_runs_in_its_plots(workdir, monkeypatch):
+def test_run_runs_keeps_the_experiments_other_runs_in_its_plots(workdir, monkeypatch, capsys):
     """QA pass 15c: `run --runs one` rewrote the experiment's plots with run one alone (two
     drivers on disjoint --runs replaced each other's plots)."""
     import mata_eval.report.plots as plots
@@ -366,6 +367,9 @@ def test_run_runs_keeps_the_experiments_other_runs_in_its_plots(workdir, monkeyp
     monkeypatch.setattr(plots, "plot_curves", lambda runs, out: plotted.append([r.name for r in runs]) or [])
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--runs", "one"]) == 0
     assert plotted == [["one", "two"]]   # three has no results: not plotted
+    (workdir / "out" / "two" / "scores.json").write_text("{")   # (review) one that cannot be read: left out, said
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--runs", "one"]) == 0
+    assert plotted[-1] == ["one"] and "plots: two left out" in capsys.readouterr().out
 
 
 def test_a_resume_under_another_setup_says_so_and_keeps_the_earlier_one(workdir, monkeypatch, capsys):
@@ -385,3 +389,24 @@ def test_a_resume_under_another_setup_says_so_and_keeps_the_earlier_one(workdir,
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0   # the same setup again: nothing
     assert "another setup" not in capsys.readouterr().out
     assert json.loads((run / "manifest.json").read_text())["earlier"] == manifest["earlier"]
+    monkeypatch.setenv("MATA_EVAL_EKF_BACKEND", "numba")   # (review) --force keeps nothing: no warning,
+    assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report", "--force"]) == 0   # and no earlier setup
+    assert "another setup" not in capsys.readouterr().out
+    assert "earlier" not in json.loads((run / "manifest.json").read_text())
+
+
+def test_eval_of_two_runs_writes_only_the_scores_of_the_run_whose_dataset_it_loaded(workdir, capsys):
+    """Review of QA pass 15c's fix: without --root the dataset is loaded with the first folder's
+    parameters, and a second run of other parameters had its scores.json replaced; the rows
+    record the dataset they were scored on."""
+    (workdir / "one.yaml").write_text("output: out1\ndataset: {name: folder, root: data, sequences: [a]}\n"
+                                      "tracker: {name: 'gt_change_trackers.stay:Stay'}\n")
+    assert main(["run", "one.yaml", "-q", "-j", "1", "--no-report"]) == 0
+    run, one = workdir / "out" / "exp", workdir / "out1" / "one"
+    (run / "scores.json").unlink(missing_ok=True)
+    capsys.readouterr()
+    assert main(["eval", str(one), str(run), "--dataset", "folder"]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {one / 'scores.json'}" in out and f"{run}: scores.json not written there" in out
+    assert not (run / "scores.json").exists()
+    assert json.loads((one / "scores.json").read_text())["meta"]["dataset"] == "folder"

@@ -289,7 +289,7 @@ def _pid_task(exp, task):
     if task.sequence == "kill":
         time.sleep(0.05)
         os.kill(os.getpid(), 9)
-    time.sleep(0.3)
+    time.sleep(0.5)
     return [SequenceResult(run, task.sequence, reason=str(os.getpid())) for run in task.runs]
 
 

@@ -579,3 +579,21 @@ def test_a_cache_that_cannot_be_written_says_what_to_change(tmp_path, monkeypatc
                                                                  "height": H}))
     with pytest.raises(DatasetError, match="cannot write the suite into .*Read-only file system.*MATA_EVAL_CACHE"):
         ds.sequences()
+
+
+def test_a_file_system_without_locks_still_generates_the_suite(tmp_path, monkeypatch):
+    """Review of QA pass 15c's lock: where flock is refused (Lustre without it, NFS without lockd)
+    every process waited forever; they generate as before (the write is atomic)."""
+    import filelock
+
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
+    from mata_eval.params import build_params
+
+    def refused(self, *args, **kwargs):
+        raise NotImplementedError("FileSystem does not appear to support flock")
+
+    monkeypatch.setattr(filelock.FileLock, "acquire", refused)
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(tmp_path / "cache"))
+    ds = SyntheticDataset(build_params(SyntheticDataset.Params, {"n_sequences": 1, "n_frames": 3, "width": W,
+                                                                 "height": H, "jobs": 1}))
+    assert len(ds.sequences()) == 1

@@ -199,8 +199,8 @@ class LocalExecutor:
 
 class RayExecutor:
     """Tasks on a Ray cluster: ``address`` ``"auto"`` (the cluster this node belongs to),
-    ``"ray://HOST:PORT"`` (Ray Client), or None for a local cluster of ``cpus`` CPUs (default:
-    all). One CPU per task; a task whose worker dies is retried once by Ray
+    ``"ray://HOST:PORT"`` (Ray Client), or None for ``$RAY_ADDRESS`` when set, else a local
+    cluster of its own with ``cpus`` CPUs (default: all). One CPU per task; a task whose worker dies is retried once by Ray
     (``max_retries=1``)."""
 
     def __init__(self, address: str | None = None, cpus: int | None = None):
@@ -220,11 +220,12 @@ class RayExecutor:
             env = {k: v for k, v in os.environ.items() if k.startswith("MATA_")}
             # ray.init installs its own SIGTERM handler (a traceback, exit 1): the run's come back
             handlers = {s: signal.getsignal(s) for s in stop.STOP_SIGNALS}
-            print(f"ray: connecting to {self.address}" if self.address else
+            # no address: $RAY_ADDRESS (`ray job submit` sets it), else a cluster of its own ("local";
+            # None would join one that `ray start` left running here, and refuse num_cpus there)
+            address = self.address or os.environ.get("RAY_ADDRESS") or None
+            print(f"ray: connecting to {address}" if address else
                   f"ray: starting a local cluster of {self.cpus or 'all'} CPU(s)", file=sys.stderr, flush=True)
-            # no address: a cluster of its own ("local"; None would join one that `ray start` left
-            # running on this machine, and refuse num_cpus there)
-            ray.init(address=self.address or "local", num_cpus=None if self.address else self.cpus,
+            ray.init(address=address or "local", num_cpus=None if address else self.cpus,
                      runtime_env={"env_vars": env} if env else None,
                      include_dashboard=False, logging_level="warning", log_to_driver=False)
             self.started = True

@@ -256,11 +256,14 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
     inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
     setup = _setup()
-    if old is not None and results.holds_results(out):   # resumed: the kept results' setup stays on record
+    keeps = [p.stem for p in out.glob("*.txt") if not (force and (not only or p.stem in only))]
+    if old is not None and keeps:   # resumed: the setup of the finished results it keeps stays on record
         setup["earlier"] = list(old.get("earlier") or [])
         changes = _setup_changes(old, setup)
         if changes:
-            setup["earlier"].append({k: old.get(k) for k in ("versions", "environment", "git_commit", "machine")})
+            before = {k: old.get(k) for k in ("versions", "environment", "git_commit", "machine")}
+            if before not in setup["earlier"]:
+                setup["earlier"].append(before)
             if log is not None:
                 log(f"warning: {spec.name}: the results kept in {out} were made with another setup "
                     f"({', '.join(changes[:4])}{' ...' if len(changes) > 4 else ''}): they may differ from what "

@@ -338,8 +338,8 @@ def evaluate_results(
 ) -> RunScores:
     """Score any results folder (no file is written). Sequences without results are listed in
     ``missing``; failed sequences of a mata run folder in ``failures``. ``dataset``: the name
-    of the dataset plugin that loaded ``sequences`` (recorded in ``meta``; a mata run folder's
-    manifest names its own)."""
+    of the dataset plugin that loaded ``sequences`` (recorded in ``meta``; default: the one a
+    mata run folder's manifest names)."""
     d = Path(results_dir)
     metrics.get_profile(profile)  # fail early on a bad name
     sequences = list(sequences)
@@ -361,7 +361,7 @@ def evaluate_results(
     meta = {
         "experiment": manifest.get("experiment"),
         "config_hash": manifest.get("config_hash"),
-        "dataset": run_dataset.get("name") if isinstance(run_dataset, dict) else dataset,
+        "dataset": dataset or (run_dataset.get("name") if isinstance(run_dataset, dict) else None),
         "unmatched_results": sorted(set(found) - {s.name for s in sequences}),
         # got10k layout: sequences with more repetitions than the first, the one scored
         "repetitions_left": sorted(k for k in per_seq if (d / k / f"{k}_002.txt").is_file()) if layout == "got10k"
@@ -403,14 +403,15 @@ BEING_WRITTEN = ("a mata-eval run is writing this folder: scored its sequences f
 
 
 def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "default",
-                 save: bool = True) -> RunScores:
+                 save: bool = True, dataset: str | None = None) -> RunScores:
     """Score a mata-eval run folder and (``save``) write ``<run>/scores.json`` atomically, unless
     a run is writing the folder: its scores are then of the sequences finished so far, not
-    written, and ``meta["unsaved"]`` says why."""
+    written, and ``meta["unsaved"]`` says why. ``dataset``: the plugin that loaded
+    ``sequences`` (default: the run's own, from its manifest)."""
     from ..run.runner import being_written
 
     busy = being_written(run_dir)
-    scores = evaluate_results(run_dir, sequences, profile, layout="mata")
+    scores = evaluate_results(run_dir, sequences, profile, layout="mata", dataset=dataset)
     if busy or being_written(run_dir):
         return dataclasses.replace(scores, meta={**scores.meta, "unsaved": BEING_WRITTEN})
     if save:

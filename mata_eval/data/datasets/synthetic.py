@@ -160,21 +160,37 @@ class SyntheticDataset:
     @contextlib.contextmanager
     def _generating(root: Path) -> Iterator[None]:
         """Held while generating the suite at ``root``: the processes of a run (the task workers of
-        every node sharing the cache, several drivers) would each render all of it at once."""
+        every node sharing the cache, several drivers) would each render all of it at once. The
+        wait ends when the suite appears, whoever holds the lock; on a file system without locks
+        (``flock`` refused) each process generates as before, the atomic write settling the race."""
         import sys
+
+        from ..synth import read_suite_info
 
         root.parent.mkdir(parents=True, exist_ok=True)
         lock = filelock.FileLock(str(root.parent / f".{root.name}.lock"))
-        try:
-            lock.acquire(timeout=0)
-        except filelock.Timeout:
-            print(f"waiting for another process generating the synthetic suite into {root}", file=sys.stderr,
-                  flush=True)
-            lock.acquire()
+        said = False
+        while True:
+            try:
+                lock.acquire(timeout=0 if not said else 5)
+                locked = True
+                break
+            except filelock.Timeout:   # (a TimeoutError, so before OSError)
+                if read_suite_info(root) is not None:
+                    locked = False
+                    break
+                if not said:
+                    print(f"waiting for another process generating the synthetic suite into {root}",
+                          file=sys.stderr, flush=True)
+                    said = True
+            except (OSError, NotImplementedError):
+                locked = False
+                break
         try:
             yield
         finally:
-            lock.release()
+            if locked:
+                lock.release()
 
     def sequences(self) -> list[Sequence]:
         return read_suite(self.ensure(), self.params.sequences)
