@@ -386,6 +386,7 @@ def test_a_resume_under_another_setup_says_so_and_keeps_the_earlier_one(workdir,
     manifest = json.loads((run / "manifest.json").read_text())
     assert manifest["environment"]["MATA_EVAL_EKF_BACKEND"] == "numpy"
     assert manifest["earlier"] == [{k: first[k] for k in ("versions", "environment", "git_commit", "machine")}]
+    monkeypatch.setenv("MATA_EVAL_CACHE", str(workdir / "elsewhere"))   # a location: not another setup
     assert main(["run", "exp.yaml", "-q", "-j", "1", "--no-report"]) == 0   # the same setup again: nothing
     assert "another setup" not in capsys.readouterr().out
     assert json.loads((run / "manifest.json").read_text())["earlier"] == manifest["earlier"]

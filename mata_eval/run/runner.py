@@ -220,14 +220,21 @@ def _setup() -> dict[str, Any]:
             "git_commit": results.git_commit(), "machine": results.machine()}
 
 
+def _a_path(*values: Any) -> bool:
+    """Whether a value is a file system path (it holds a path separator)."""
+    return any(isinstance(v, str) and os.sep in v for v in values)
+
+
 def _setup_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     """How the setup ``new`` differs from the one a manifest ``old`` recorded (the command line
     aside), e.g. ``numpy 1.26.4 -> 2.1.0``."""
     changes = []
     for key in ("versions", "environment"):
         a, b = old.get(key) or {}, new.get(key) or {}
+        # (a variable naming a file or folder, e.g. MATA_EVAL_CACHE, says where, not what: the
+        # files a run reads are compared by content, model_files)
         changes += [f"{k} {a.get(k, '(none)')} -> {b.get(k, '(none)')}" for k in sorted(set(a) | set(b))
-                    if a.get(k) != b.get(k)]
+                    if a.get(k) != b.get(k) and not (key == "environment" and _a_path(a.get(k), b.get(k)))]
     if old.get("git_commit") != new.get("git_commit"):
         changes.append(f"commit {old.get('git_commit')} -> {new.get('git_commit')}")
     strip = lambda m: {k: v for k, v in (m or {}).items() if k != "argv"}  # noqa: E731
