@@ -108,7 +108,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             print(f"{s.name}: on the {occ.n_scored} occluded frames of {occ.n_sequences} "
                   f"sequence{'s' if occ.n_sequences != 1 else ''}: "
                   f"SR {100 * occ.sr:.1f}  MSR {100 * occ.msr:.1f}  PR {100 * occ.pr:.1f}")
-    plots = plot_curves(scores + _other_runs_scores(exp, names), exp.output / REPORT_FOLDER)
+    order = {r.name: i for i, r in enumerate(exp.runs)}   # (a run's colour is its place in the experiment)
+    plotted = sorted(scores + _other_runs_scores(exp, names), key=lambda s: order.get(s.name, len(order)))
+    plots = plot_curves(plotted, exp.output / REPORT_FOLDER)
     for p in plots:
         print(f"plot: {p}")
     _print_incomplete(scores)   # failed, unscorable, without results (--sequences), ...
@@ -193,12 +195,14 @@ def cmd_validate(args: argparse.Namespace) -> int:
     for spec in checked.runs:
         for line in profile_warnings(spec):
             print(f"warning: {spec.name}: {line}")
+    refused = ""
     try:   # what `run` refuses in the output folder without --force (QA pass 15c: said ready, then refused)
         refuse_conflicts(exp, checked.runs)
     except ResultsConflict as exc:
         print(f"warning: run without --force refuses this: {exc}")
+        refused = "; their output folders hold results that `run` refuses without --force (above)"
     print(f"preflight: {len(checked.runs)} run(s) ready" + (f", {len(checked.skipped)} optional run(s) skipped"
-                                                          if checked.skipped else ""))
+                                                          if checked.skipped else "") + refused)
     return 0
 
 
@@ -899,7 +903,7 @@ def _add_eval(subparsers) -> None:
     p = subparsers.add_parser(
         "eval", help="score results folders (mata-eval run, pysot, got10k or pytracking layout)",
         description="Score results folders against a dataset's annotations (no images are read) and "
-                    "print the table. A mata-eval run folder gets its scores.json (re)written.")
+                    "print the table. A mata-eval run folder gets its scores.json (re)written when scored on its own dataset parameters.")
     p.add_argument("results_dirs", nargs="+", metavar="RESULTS_DIR",
                    help="folder with one result file per sequence; several folders are scored in one "
                         "process (the annotations read once) and shown as the rows of one table")

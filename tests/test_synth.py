@@ -597,3 +597,32 @@ def test_a_file_system_without_locks_still_generates_the_suite(tmp_path, monkeyp
     ds = SyntheticDataset(build_params(SyntheticDataset.Params, {"n_sequences": 1, "n_frames": 3, "width": W,
                                                                  "height": H, "jobs": 1}))
     assert len(ds.sequences()) == 1
+
+
+def _enter_generating(root: str) -> None:
+    from pathlib import Path
+
+    from mata_eval.data.datasets.synthetic import SyntheticDataset
+
+    with SyntheticDataset._generating(Path(root)):
+        pass
+
+
+def test_a_child_process_does_not_wait_for_the_lock_its_parent_may_hold(tmp_path):
+    """QA pass 15d: a script without the `if __name__ == "__main__":` guard, re-imported by a
+    generator worker, waited for the lock its parent held while the parent waited for it (for
+    ever; before the lock it failed at once)."""
+    import multiprocessing
+
+    import filelock
+
+    root = tmp_path / "cache" / "suite"
+    root.parent.mkdir(parents=True)
+    with filelock.FileLock(str(root.parent / f".{root.name}.lock")):
+        child = multiprocessing.get_context("spawn").Process(target=_enter_generating, args=(str(root),))
+        child.start()
+        child.join(60)
+        alive = child.is_alive()
+        if alive:
+            child.kill()
+    assert not alive and child.exitcode == 0

@@ -220,31 +220,8 @@ def _setup() -> dict[str, Any]:
             "git_commit": results.git_commit(), "machine": results.machine()}
 
 
-def _a_path(*values: Any) -> bool:
-    """Whether a value is a file system path (it holds a path separator)."""
-    return any(isinstance(v, str) and os.sep in v for v in values)
-
-
-def _setup_changes(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """How the setup ``new`` differs from the one a manifest ``old`` recorded (the command line
-    aside), e.g. ``numpy 1.26.4 -> 2.1.0``."""
-    changes = []
-    for key in ("versions", "environment"):
-        a, b = old.get(key) or {}, new.get(key) or {}
-        # (a variable naming a file or folder, e.g. MATA_EVAL_CACHE, says where, not what: the
-        # files a run reads are compared by content, model_files)
-        changes += [f"{k} {a.get(k, '(none)')} -> {b.get(k, '(none)')}" for k in sorted(set(a) | set(b))
-                    if a.get(k) != b.get(k) and not (key == "environment" and _a_path(a.get(k), b.get(k)))]
-    if old.get("git_commit") != new.get("git_commit"):
-        changes.append(f"commit {old.get('git_commit')} -> {new.get('git_commit')}")
-    strip = lambda m: {k: v for k, v in (m or {}).items() if k != "argv"}  # noqa: E731
-    if strip(old.get("machine")) != strip(new.get("machine")):
-        changes.append("machine")
-    return changes
-
-
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
-                    only: list[str] | None = None, log: Callable[[str], None] | None = None) -> Path:
+                    only: list[str] | None = None) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
     to mix results of another configuration, of other model files or preset values, or made
     on other ground truth (``only``: the sequences ``force`` redoes, default all)."""
@@ -262,21 +239,8 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
             raise ResultsConflict(why)
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
     inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
-    setup = _setup()
-    keeps = [p.stem for p in out.glob("*.txt") if not (force and (not only or p.stem in only))]
-    if old is not None and keeps:   # resumed: the setup of the finished results it keeps stays on record
-        setup["earlier"] = list(old.get("earlier") or [])
-        changes = _setup_changes(old, setup)
-        if changes:
-            before = {k: old.get(k) for k in ("versions", "environment", "git_commit", "machine")}
-            if before not in setup["earlier"]:
-                setup["earlier"].append(before)
-            if log is not None:
-                log(f"warning: {spec.name}: the results kept in {out} were made with another setup "
-                    f"({', '.join(changes[:4])}{' ...' if len(changes) > 4 else ''}): they may differ from what "
-                    f"this one computes (manifest.json keeps it under 'earlier'; --force redoes them)")
     try:
-        _write_manifest(out, exp, spec, inputs, notes, setup)
+        _write_manifest(out, exp, spec, inputs, notes, _setup())
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
         kept = "the results there stay" if results.holds_results(out) else "the folder holds no results"
         raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran ({kept}: "
@@ -464,7 +428,7 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
         notes = protocol_warnings(spec)
         for message in notes:
             log(f"warning: {spec.name}: {message}")
-        out = prepare_run_dir(exp, spec, force, notes, sequences, log)
+        out = prepare_run_dir(exp, spec, force, notes, sequences)
         for i, seq in enumerate(load_sequences(spec)):
             if sequences and seq.name not in sequences:
                 continue

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import multiprocessing
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -168,6 +169,12 @@ class SyntheticDataset:
         from ..synth import read_suite_info
 
         root.parent.mkdir(parents=True, exist_ok=True)
+        if multiprocessing.parent_process() is not None:
+            # a child of a process that may hold the lock and wait for it (a script without the
+            # `if __name__ == "__main__":` guard, re-imported by a generator worker): no lock, so
+            # it fails as before instead of waiting for ever
+            yield
+            return
         lock = filelock.FileLock(str(root.parent / f".{root.name}.lock"))
         said = False
         while True:
