@@ -223,8 +223,8 @@ def cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list:
-    """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
+def _dataset_params(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> tuple[type, Any]:
+    """The dataset plugin ``name`` and its parameters built with ``{"root": root, **extra}``."""
     from .core.params import build_params
     from .core.registry import load_registry
 
@@ -232,7 +232,13 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     values = dict(extra or {})
     if root is not None:
         values["root"] = root
-    return list(cls(build_params(cls.Params, values)).sequences())
+    return cls, build_params(cls.Params, values)
+
+
+def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> list:
+    """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
+    cls, params = _dataset_params(name, root, extra)
+    return list(cls(params).sequences())
 
 
 def _run_manifest(results_dir: str, dataset: str) -> dict[str, Any]:
@@ -258,16 +264,13 @@ def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
     return json.loads(json.dumps(out, default=str))
 
 
-def _effective_dataset(name: str, values: Mapping[str, Any], cwd: Path) -> dict[str, Any] | None:
+def _effective_dataset(name: str, root: str | None, values: Mapping[str, Any], cwd: Path) -> dict[str, Any] | None:
     """The parameters (:func:`_dataset_key`) of the dataset ``eval`` loaded, defaults included."""
-    from .core.params import build_params
-    from .core.registry import load_registry
-
     try:
-        cls = load_registry().get("dataset", name).cls
-        return _dataset_key({"name": name, **dataclasses.asdict(build_params(cls.Params, values, ("dataset",)))}, cwd)
+        _, params = _dataset_params(name, root, values)
     except (KeyError, ValueError, TypeError):
         return None
+    return _dataset_key({"name": name, **dataclasses.asdict(params)}, cwd)
 
 
 def _runs_own_dataset(manifest: dict[str, Any], effective: dict[str, Any] | None) -> bool:
@@ -343,8 +346,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             values_cwd = Path(first.get("cwd") or ".")
         with run_cwd():
             seqs = load_dataset(args.dataset, args.root, sets)
-        effective = _effective_dataset(args.dataset, {**sets, **({} if args.root is None else {"root": args.root})},
-                                       values_cwd)
+        effective = _effective_dataset(args.dataset, args.root, sets, values_cwd)
     except (FileNotFoundError, ValueError, KeyError) as exc:
         print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
         return 2
@@ -370,9 +372,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
             else:
                 scores = evaluate_results(results_dir, seqs, args.profile, layout=layout, name=args.name,
                                           dataset=args.dataset)
-                if layout != "auto" and not scores.sequences and detect_layout(Path(results_dir)) != layout:
+                if layout != "auto" and not scores.sequences and (held := detect_layout(Path(results_dir))) != layout:
                     print(f"{results_dir}: --layout {layout} found no results; the folder holds the "
-                          f"{detect_layout(Path(results_dir))} layout (leave --layout out to detect it)")
+                          f"{held} layout (leave --layout out to detect it)")
         except (FileNotFoundError, ValueError, KeyError) as exc:
             print(f"error: {exc.args[0] if isinstance(exc, KeyError) else exc}", file=sys.stderr)
             bad += 1
