@@ -134,10 +134,9 @@ class LocalExecutor:
         pending, suspects = tasks, []
         while pending:
             lost, started, _ = self._pool(exp, pending, self.workers, done)
-            began = {id(task) for task in started}
-            running = [task for task in lost if id(task) in began] or lost   # (no mark came: all alone)
+            running = [task for task in lost if task in started] or lost   # (no mark came: all alone)
             suspects += running
-            pending = [task for task in lost if id(task) not in began] if running is not lost else []
+            pending = [task for task in lost if task not in running]
         for task in suspects:
             for run in task.runs:
                 alone = dataclasses.replace(task, runs=(run,))
