@@ -44,15 +44,17 @@ class ToyDataset:
     @dataclass(frozen=True)
     class Params:
         n: int = param(6, "frames")
+        sequences: list[str] | None = param(None, "names of the sequences to load (default: all)")
 
     def __init__(self, params):
         self.params = params
 
     def sequences(self):
         gt = np.array([[10.0 + k, 10.0, 8.0, 8.0] for k in range(self.params.n)])
-        return [Sequence("good", gt, 30.0, loader=_image),
-                Sequence("broken", gt, 30.0, loader=_bad_loader),
-                Sequence("nan", gt, 30.0, loader=_image)]
+        seqs = {"good": Sequence("good", gt, 30.0, loader=_image),
+                "broken": Sequence("broken", gt, 30.0, loader=_bad_loader),
+                "nan": Sequence("nan", gt, 30.0, loader=_image)}
+        return [seqs[k] for k in self.params.sequences or seqs]
 
 
 class ShiftTracker:
@@ -91,11 +93,11 @@ def _registry():
                      "protocol": {"ltp": real.plugins["protocol"]["ltp"]}}, ())
 
 
-def _exp(tmp_path, tracker_block="{name: shift}"):
+def _exp(tmp_path, tracker_block="{name: shift}", dataset_block="{name: toy}"):
     p = tmp_path / "exp.yaml"
     p.write_text(textwrap.dedent(f"""\
         output: {tmp_path / 'out'}
-        dataset: {{name: toy}}
+        dataset: {dataset_block}
         tracker: {tracker_block}
         """))
     return load_experiment(p, _registry())
@@ -152,6 +154,26 @@ def test_changed_config_does_not_mix_with_old_results(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out" / "exp").glob("*.txt")) == ["good.txt"]
     outcomes = run_experiment(changed, jobs=1, force=True, progress=False, log=lambda s: None)
     assert {o.status for o in outcomes} == {"done", "failed"}
+
+
+def test_a_changed_sequence_selection_resumes(tmp_path):
+    """Sequences added to, removed from or reordered in the dataset's ``sequences`` list keep
+    the run folder: only a new sequence runs, a removed one's results stay (each result depends
+    on its sequence alone); another change is still refused, and named (not the list)."""
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    selection = lambda names, tracker="{name: shift}": _exp(tmp_path, tracker, f"{{name: toy, sequences: {names}}}")
+    assert [o.status for o in run_experiment(selection("[good]"), **quiet)] == ["done"]
+    CALLS.clear()
+    outcomes = {o.sequence: o.status for o in run_experiment(selection("[nan, good]"), **quiet)}
+    assert outcomes == {"nan": "done", "good": "skipped"}
+    assert CALLS == [f"frame{k}" for k in range(1, 6)]   # nan's five tracked frames, nothing of good's
+    outcomes = {o.sequence: o.status for o in run_experiment(selection("[nan]"), **quiet)}
+    assert outcomes == {"nan": "skipped"}
+    run = tmp_path / "out" / "exp"
+    assert sorted(p.name for p in run.glob("*.txt")) == ["good.txt", "nan.txt"]
+    assert json.loads((run / "manifest.json").read_text())["config"]["dataset"]["sequences"] == ["nan"]
+    with pytest.raises(ResultsConflict, match=r"different configuration \(tracker\.nan_after: -1 then, 100 now;"):
+        run_experiment(selection("[good, nan]", "{name: shift, nan_after: 100}"), **quiet)
 
 
 def test_an_interrupted_forced_rerun_loses_nothing(tmp_path, monkeypatch):

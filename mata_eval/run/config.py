@@ -130,8 +130,21 @@ class RunSpec:
 
     @property
     def config_hash(self) -> str:
-        text = json.dumps(self.resolved, sort_keys=True, default=str)
+        """What the run's results depend on: its resolved configuration without the dataset's
+        ``sequences`` selection (:func:`without_selection`)."""
+        text = json.dumps(without_selection(self.resolved), sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def without_selection(resolved: Mapping[str, Any]) -> dict[str, Any]:
+    """A resolved configuration without its dataset's ``sequences`` selection: each sequence's
+    result depends on that sequence alone (its seed comes from the run's seed and its name), so
+    a run folder resumes, running only the new ones, when sequences are added to the list,
+    removed from it (their results stay in the folder, not scored) or reordered."""
+    dataset = resolved.get("dataset")
+    if not isinstance(dataset, Mapping):
+        return dict(resolved)
+    return {**resolved, "dataset": {k: v for k, v in dataset.items() if k != "sequences"}}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ..core.errors import Interrupted, UserError
 from ..core.sequence import Sequence
 from . import results
-from .config import Experiment, RunSpec, config_change
+from .config import Experiment, RunSpec, config_change, without_selection
 from .executors import Executor, LocalExecutor
 from .preflight import unknown_sequences_line
 from .scheduler import RateWarning
@@ -134,7 +134,8 @@ def _read_beyond_the_configuration(old: dict, now: dict) -> str | None:
 def _change(old: dict, spec: RunSpec) -> str:
     """``<what changed>; `` between an old manifest's configuration and this run's (e.g. a plugin's
     version), or nothing when the old manifest has none."""
-    change = config_change(old["config"], spec.resolved) if isinstance(old.get("config"), dict) else None
+    change = (config_change(without_selection(old["config"]), without_selection(spec.resolved))
+              if isinstance(old.get("config"), dict) else None)
     return "" if change is None else f"{change}; "
 
 
