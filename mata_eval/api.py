@@ -97,17 +97,30 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
     ``dataset``: a dataset plugin name (``mata-eval list``; an unknown one is a ValueError
     naming those that exist); ``root``: its folder; more of its parameters as keywords
     (``sequences=[...]``, ``fps=30``); ``profile``: the metric profile (``default``,
-    ``pysot-toolkit``, ``got10k``, ...)."""
+    ``pysot-toolkit``, ``got10k``, ...). As ``mata-eval eval``: without ``root``, a mata-eval
+    run folder of this dataset (the first one given) is scored on the run's own dataset
+    parameters, the keywords on top, and each run folder with its run's occlusion augmentation."""
+    import warnings
+
     from .core.params import build_params
     from .core.registry import load_registry
+    from .run.results import in_run_cwd
     from .score.evaluate import evaluate_results
+    from .score.run_dataset import as_the_run_saw_them, run_dataset_values, run_manifest
 
     try:
         cls = load_registry().get("dataset", dataset).cls
     except KeyError as exc:
         raise ValueError(exc.args[0]) from None
+    folders = [Path(folder)] if isinstance(folder, (str, Path)) else [Path(f) for f in folder]
+    manifests = [run_manifest(f, dataset) for f in folders]
     values = {**dataset_params, **({} if root is None else {"root": str(root)})}
-    sequences = cls(build_params(cls.Params, values, ("dataset",))).sequences()
-    if isinstance(folder, (str, Path)):
-        return evaluate_results(Path(folder), sequences, profile=profile, layout=layout, dataset=dataset)
-    return [evaluate_results(Path(f), sequences, profile=profile, layout=layout, dataset=dataset) for f in folder]
+    first = manifests[0] if folders and root is None else {}
+    if first:
+        values = run_dataset_values(first, values)
+    with in_run_cwd(first or None):   # (the run's relative paths; frame 0 for its occlusion augmentation)
+        sequences = cls(build_params(cls.Params, values, ("dataset",))).sequences()
+        seen = [as_the_run_saw_them(sequences, m.get("config", {}), lambda line: warnings.warn(f"{f}: {line}", stacklevel=3))
+                for f, m in zip(folders, manifests)]
+    scores = [evaluate_results(f, s, profile=profile, layout=layout, dataset=dataset) for f, s in zip(folders, seen)]
+    return scores[0] if isinstance(folder, (str, Path)) else scores

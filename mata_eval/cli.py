@@ -241,20 +241,6 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(params).sequences())
 
 
-def _run_manifest(results_dir: str, dataset: str) -> dict[str, Any]:
-    """A mata-eval run folder's manifest when its dataset is the plugin ``dataset`` (its
-    ``config`` the run's resolved configuration); empty otherwise (another layout, another
-    dataset, no manifest)."""
-    from .run.results import read_manifest
-
-    try:
-        manifest = read_manifest(Path(results_dir)) or {}
-    except (OSError, ValueError):
-        return {}
-    ds = (manifest.get("config") or {}).get("dataset")
-    return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
-
-
 def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
     """A dataset's resolved parameters as compared between a run's manifest and an ``eval``:
     None dropped, ``root`` and ``annotations`` made absolute against the folder ``cwd`` they
@@ -281,33 +267,13 @@ def _runs_own_dataset(manifest: dict[str, Any], effective: dict[str, Any] | None
             and _dataset_key(ds, Path(manifest.get("cwd") or ".")) == effective)
 
 
-def _as_the_run_saw_them(seqs: list, results_dir: str, config: dict[str, Any]) -> list:
-    """``seqs`` with the run's occlusion augmentation (its manifest's ``occlusion`` and seed),
-    which adds the AOC attribute and the occluded frames: scored without it, a run made with
-    ``occlusion: {}`` lost its occlusion group. Reads each sequence's frame 0 (its size)."""
-    if not config.get("occlusion"):
-        return seqs
-    from .core.params import build_params
-    from .core.sequence import FrameReadError
-    from .data.occlusion import OcclusionParams, augment_sequence
-
-    params, seed = build_params(OcclusionParams, config["occlusion"]), int(config.get("seed", 0))
-    try:
-        augmented = [augment_sequence(s, params, seed) for s in seqs]
-    except FrameReadError as exc:   # annotations only: the occluders' placement needs the image size
-        print(f"{results_dir}: scored without the run's occlusion augmentation (no AOC group, no occluded-frame "
-              f"scores): it needs each sequence's frame 0 ({exc})")
-        return seqs
-    print(f"{results_dir}: with the run's occlusion augmentation (seed {seed})")
-    return augmented
-
-
 def cmd_eval(args: argparse.Namespace) -> int:
     """Score one or more results folders against one dataset, in one process: the annotations
     are read once and every folder is one row of the table."""
     from .core.params import parse_key_values
     from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
+    from .score.run_dataset import as_the_run_saw_them, run_dataset_values, run_manifest
 
     resolved = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     for twice in sorted({d for d in resolved if resolved.count(d) > 1}):
@@ -332,16 +298,17 @@ def cmd_eval(args: argparse.Namespace) -> int:
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
     try:
-        manifests = {d: _run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
+        manifests = {d: run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
         first = manifests[args.results_dirs[0]]
-        if args.root is None and not sets and first:
+        if args.root is None and first:
             # a run folder of this dataset: the dataset as that run loaded it, not the default
             # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count), its
-            # relative paths from the folder it ran in
+            # relative paths from the folder it ran in, --set on top
             from .run.results import in_run_cwd
 
-            sets = {k: v for k, v in first["config"]["dataset"].items() if k != "name" and v is not None}
-            print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}")
+            given = ", with --set " + " ".join(args.set) if sets else ""
+            sets = run_dataset_values(first, sets)
+            print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}{given}")
             run_cwd = lambda: in_run_cwd(first)  # noqa: E731
             values_cwd = Path(first.get("cwd") or ".")
         with run_cwd():
@@ -356,7 +323,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
             layout = args.layout
             if layout == "mata" or (layout == "auto" and detect_layout(Path(results_dir)) == "mata"):
                 with run_cwd():   # frame 0 of each sequence, for the run's occlusion augmentation
-                    run_seqs = _as_the_run_saw_them(seqs, results_dir, manifests[results_dir].get("config", {}))
+                    config = manifests[results_dir].get("config", {})
+                    run_seqs = as_the_run_saw_them(seqs, config, lambda line: print(f"{results_dir}: {line}"))
+                if run_seqs is not seqs:
+                    print(f"{results_dir}: with the run's occlusion augmentation (seed {config.get('seed', 0)})")
                 # (not saved while a run writes the folder: meta["unsaved"], said under the table)
                 scores = evaluate_run(Path(results_dir), run_seqs, args.profile, save=False, dataset=args.dataset)
                 own = _runs_own_dataset(manifests[results_dir], effective)
@@ -911,7 +881,9 @@ def _add_eval(subparsers) -> None:
                         "process (the annotations read once) and shown as the rows of one table")
     p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
     p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="another dataset parameter (repeatable)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="another dataset parameter (repeatable); for a run folder without --root, on top of the "
+                        "run's own (KEY=null: the default)")
     p.add_argument("--layout", choices=("auto",) + LAYOUTS, default="auto",
                    help="results layout (default: detected)")
     p.add_argument("--profile", choices=tuple(PROFILES), default="default",

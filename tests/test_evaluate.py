@@ -11,9 +11,12 @@ import zipfile
 import numpy as np
 import pytest
 
+import mata_eval as me
+
 from mata_eval import cli
 from mata_eval.run import results
 from mata_eval.score import evaluate
+from mata_eval.score.run_dataset import as_the_run_saw_them
 from mata_eval.core.sequence import Sequence
 
 N = 12
@@ -287,8 +290,9 @@ def test_real_got10k_layout_is_read(shared_data, tmp_path):
 def test_eval_of_a_run_folder_takes_the_runs_dataset_parameters(tmp_path, monkeypatch, capsys):
     """``eval RUN --dataset synthetic`` without ``--set`` generated the default 20 x 300 suite
     at 1280 x 720 (1.1 GB, a minute) and then failed on the frame count (QA pass): for a run
-    folder of that dataset the run's own parameters are used, and said so; given ``--set`` or
-    ``--root``, the user's parameters are used as they are."""
+    folder of that dataset the run's own parameters are used, and said so; ``--set`` changes
+    one of them (it replaced them all: QA pass, the default suite again), ``KEY=null`` puts one
+    back to its default; given ``--root``, the user's parameters are used as they are."""
     seqs = make_sequences()[:2]
     d = tmp_path / "run"
     for s in seqs:
@@ -301,7 +305,10 @@ def test_eval_of_a_run_folder_takes_the_runs_dataset_parameters(tmp_path, monkey
     assert calls[-1] == {"n_frames": 60, "width": 320}
     assert f"dataset synthetic with the parameters of {d / 'manifest.json'}" in capsys.readouterr().out
     assert cli.main(["eval", str(d), "--dataset", "synthetic", "--set", "n_frames=30", "--no-save"]) == 0
-    assert calls[-1] == {"n_frames": 30}
+    assert calls[-1] == {"n_frames": 30, "width": 320}
+    assert "manifest.json, with --set n_frames=30" in capsys.readouterr().out
+    assert cli.main(["eval", str(d), "--dataset", "synthetic", "--set", "width=null", "--no-save"]) == 0
+    assert calls[-1] == {"n_frames": 60, "width": None}
     assert cli.main(["eval", str(d), "--dataset", "dtb70", "--root", "/x", "--no-save"]) == 0
     assert calls[-1] == {}
 
@@ -324,6 +331,12 @@ def test_eval_of_an_occluded_run_folder_gives_back_the_runs_own_scores(tmp_path,
     assert "with the run's occlusion augmentation (seed 3)" in capsys.readouterr().out
     again = json.loads((tmp_path / "again" / "scores.json").read_text())
     assert again["summary"] == own["summary"] and again["sequences"] == own["sequences"]
+    # the Python API, from another folder: the same (it scored the default 20 x 300 suite, unoccluded)
+    monkeypatch.chdir(tmp_path / "out")
+    api = me.evaluate(run, dataset="synthetic").to_dict()
+    assert api["summary"] == own["summary"] and api["sequences"] == own["sequences"]
+    n_frames = me.evaluate(run, dataset="synthetic", n_frames=30)   # a keyword on top of the run's parameters
+    assert set(n_frames.meta["unscorable"]) == set(own["sequences"]) and not n_frames.sequences   # 40 lines, 30 frames
 
 
 def test_rescoring_an_occluded_run_without_its_frames_says_what_is_lost(capsys):
@@ -335,7 +348,7 @@ def test_rescoring_an_occluded_run_without_its_frames_says_what_is_lost(capsys):
     from mata_eval.data.occlusion import OcclusionParams
 
     config = {"dataset": {"name": "toy"}, "occlusion": dataclasses.asdict(OcclusionParams()), "seed": 1}
-    assert cli._as_the_run_saw_them(seqs, "RUN", config) is seqs
+    assert as_the_run_saw_them(seqs, config, lambda line: print(f"RUN: {line}")) is seqs
     assert "RUN: scored without the run's occlusion augmentation (no AOC group" in capsys.readouterr().out
 
 
