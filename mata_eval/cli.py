@@ -374,7 +374,8 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     results folder short of the dataset; its row averages only the others), its results of no
     sequence of the ``dataset`` (a sequence removed since), the frames it skipped as unreadable
     (``on_bad_frame: skip``: not scored), the sequences run on other ground truth than they are
-    scored on, and rows scored under different metric profiles (their numbers do not compare)."""
+    scored on, the package versions that differ among its results, and rows scored under
+    different metric profiles (their numbers do not compare)."""
     profiles: dict[str, list[str]] = {}
     for scores in runs:
         profiles.setdefault(scores.profile, []).append(scores.name)
@@ -430,6 +431,11 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
                   f"tracker started from another box, or occluders were placed from other boxes): "
                   f"{', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
                   + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
+        mixed = scores.meta.get("mixed_versions") or {}
+        if mixed:
+            print(f"the results{where} were made with different package versions (a run resumed after an upgrade): "
+                  + "; ".join(f"{k} {', '.join(v)}" for k, v in mixed.items())
+                  + f" (manifest.json `made_by` says which made each sequence; --force redoes them all with this one)")
         bad = scores.meta.get("bad_frames") or {}
         if bad:
             print(f"{sum(bad.values())} unreadable frame(s) skipped and not scored (on_bad_frame: skip){where}: "

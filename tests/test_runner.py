@@ -176,6 +176,44 @@ def test_a_changed_sequence_selection_resumes(tmp_path):
         run_experiment(selection("[good, nan]", "{name: shift, nan_after: 100}"), **quiet)
 
 
+def test_the_manifest_says_which_setup_made_each_result(tmp_path, monkeypatch, capsys):
+    """A run resumed after an upgrade: the manifest's top-level versions are the last run's, and
+    ``setups`` / ``made_by`` keep which setup made each result (they said the new versions made
+    them all); scoring names the packages whose versions differ; the command line alone is not
+    another setup; --force redoes them all with one."""
+    from mata_eval import cli
+    from mata_eval.run import runner
+    from mata_eval.score.evaluate import evaluate_results
+
+    quiet = dict(jobs=1, progress=False, log=lambda s: None)
+    selection = lambda names: _exp(tmp_path, dataset_block=f"{{name: toy, sequences: {names}}}")
+    real = runner._setup()
+    setup = lambda numpy, argv: {**real, "versions": {**real["versions"], "numpy": numpy},
+                                 "machine": {**real["machine"], "argv": argv}}
+    monkeypatch.setattr(runner, "_setup", lambda: setup("1.0", ["mata-eval", "run", "a"]))
+    run_experiment(selection("[good]"), **quiet)
+    monkeypatch.setattr(runner, "_setup", lambda: setup("1.0", ["mata-eval", "run", "b"]))
+    run_experiment(selection("[good]"), force=True, **quiet)   # the command line differs: the same setup
+    monkeypatch.setattr(runner, "_setup", lambda: setup("2.0", ["mata-eval", "run", "b"]))
+    run_experiment(selection("[good, nan]"), **quiet)
+    run = tmp_path / "out" / "exp"
+    manifest = json.loads((run / "manifest.json").read_text())
+    assert manifest["versions"]["numpy"] == "2.0"
+    assert [s["versions"]["numpy"] for s in manifest["setups"]] == ["1.0", "2.0"]
+    assert manifest["made_by"] == {"good": 0, "nan": 1}
+    assert "argv" not in manifest["setups"][0]["machine"]
+    seqs = ToyDataset(ToyDataset.Params(sequences=["good", "nan"])).sequences()
+    scores = evaluate_results(run, seqs)
+    assert scores.meta["mixed_versions"] == {"numpy": ["1.0", "2.0"]}
+    assert evaluate_results(run, seqs[:1]).meta["mixed_versions"] == {}   # good alone: one setup
+    cli._print_incomplete([scores])
+    assert ("the results were made with different package versions (a run resumed after an upgrade): "
+            "numpy 1.0, 2.0 (manifest.json `made_by`") in capsys.readouterr().out
+    run_experiment(selection("[good, nan]"), force=True, **quiet)
+    manifest = json.loads((run / "manifest.json").read_text())
+    assert len(manifest["setups"]) == 1 and manifest["made_by"] == {"good": 0, "nan": 0}
+
+
 def test_an_interrupted_forced_rerun_loses_nothing(tmp_path, monkeypatch):
     """--force redoes finished sequences in place: stopped after its first new result, the
     others still hold their earlier results (QA pass: all were deleted before the run)."""

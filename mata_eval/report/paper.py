@@ -485,7 +485,8 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
 
 
 def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
-    """Provenance lines for the summary: experiments, commits and machines of the runs."""
+    """Provenance lines for the summary: experiments, commits and machines of the runs (of
+    every setup that made their results: a resumed run may have several)."""
     from ..run import results
 
     exps, commits, machines = [], [], []
@@ -493,8 +494,10 @@ def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
         m = results.read_manifest(Path(r.scores.path)) if Path(r.scores.path).is_dir() else None
         if not m:
             continue
-        for lst, v in ((exps, m.get("experiment")), (commits, m.get("git_commit")),
-                       (machines, _machine_line(m.get("machine")))):
+        made = [(exps, m.get("experiment"))]
+        for setup in m.get("setups") or [m]:   # (an older manifest: its own, the last run's)
+            made += [(commits, setup.get("git_commit")), (machines, _machine_line(setup.get("machine")))]
+        for lst, v in made:
             if v and v not in lst:
                 lst.append(v)
     out = [f"{len({r.scores.path for r in runs})} run(s); metric profile {', '.join(sorted({r.scores.profile for r in runs}))}"]

@@ -320,6 +320,19 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def mixed_versions(manifest: dict, names: Iterable[str]) -> dict[str, list[str]]:
+    """Package -> the versions that made the results of the sequences ``names`` of a run folder,
+    for the packages whose version differs among them (a run resumed after an upgrade; the
+    manifest's ``setups`` and ``made_by``); empty when one setup made them all or there is no
+    record (an older mata-eval)."""
+    setups, made_by = manifest.get("setups") or [], manifest.get("made_by") or {}
+    used = {made_by.get(n) for n in names}
+    versions = [(setups[i].get("versions") or {}) for i in sorted(k for k in used if isinstance(k, int))
+                if 0 <= i < len(setups)]
+    packages = sorted({k for v in versions for k in v})
+    return {k: sorted({str(v.get(k)) for v in versions}) for k in packages if len({v.get(k) for v in versions}) > 1}
+
+
 def git_commit(path: Path | None = None) -> str | None:
     """The commit of the mata-eval checkout (with ``+dirty`` when it has local changes); None for
     an installed package, also one in a virtual environment inside the user's own repository

@@ -144,23 +144,29 @@ RUN_ON_OTHER_GT = ("their tracker started from another box",
                    "their tracker started from another box or the occluders were placed from other boxes")
 
 
-def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, force: bool,
+def to_compute(out: Path, spec: RunSpec, force: bool, only: list[str] | None) -> set[str]:
+    """The sequences a run computes: those not finished in its folder ``out``, and with
+    ``force`` the finished ones too (of ``only`` if given)."""
+    return {s.name for s in load_sequences(spec)
+            if not results.is_finished(out, s.name) or (force and (not only or s.name in only))}
+
+
+def groundtruth_record(exp: Experiment, spec: RunSpec, old: dict | None, computed: set[str],
                        only: list[str] | None = None) -> dict[str, str]:
     """Sequence -> sha256 of what the run reads of its annotations
     (:func:`results.run_input_sha256`: the start box, all boxes with occlusion) for the manifest:
-    today's for a sequence this run computes (``force``: the finished ones too, of ``only`` if
-    given), the recorded one for a sequence it keeps (also one absent from the dataset today).
-    Refuses a kept sequence of ``only`` whose record differs now, as a changed model file is
-    refused (one ``--sequences`` leaves out is not this run's to judge); one made by an older
-    mata-eval (no record) is kept without one."""
+    today's for a sequence this run computes (``computed``: :func:`to_compute`), the recorded
+    one for a sequence it keeps (also one absent from the dataset today). Refuses a kept
+    sequence of ``only`` whose record differs now, as a changed model file is refused (one
+    ``--sequences`` leaves out is not this run's to judge); one made by an older mata-eval (no
+    record) is kept without one."""
     out, before = run_dir(exp, spec), (old or {}).get("groundtruth") or {}
     occluded = spec.occlusion is not None
     record, changed = dict(before), []
     for seq in load_sequences(spec):
-        selected = not only or seq.name in only
-        if not results.is_finished(out, seq.name) or (force and selected):
+        if seq.name in computed:
             record[seq.name] = results.run_input_sha256(seq, occluded)
-        elif selected:
+        elif not only or seq.name in only:
             changed += results.changed_run_inputs(before, [seq], occluded)
             if before.get(seq.name) == results.groundtruth_sha256(seq):   # a development record of every
                 record[seq.name] = results.run_input_sha256(seq, occluded)  # box, still true: what was read
@@ -221,6 +227,37 @@ def _setup() -> dict[str, Any]:
             "git_commit": results.git_commit(), "machine": results.machine()}
 
 
+#: what tells two setups apart (:func:`_setup` without the command line, ``machine.argv``)
+SETUP_KEYS = ("versions", "environment", "git_commit", "machine")
+
+
+def _setup_identity(setup: dict[str, Any]) -> dict[str, Any]:
+    machine = {k: v for k, v in (setup.get("machine") or {}).items() if k != "argv"}
+    return json.loads(json.dumps({**{k: setup.get(k) for k in SETUP_KEYS}, "machine": machine}, default=str))
+
+
+def made_by_record(out: Path, old: dict | None, setup: dict[str, Any], computed: set[str]) -> dict[str, Any]:
+    """Which setup made each result of the run folder ``out``, for the manifest (whose
+    top-level versions, commit and machine are those of its last run, also after a resume with
+    other code): ``setups``, the distinct setups (:func:`_setup_identity`), and ``made_by``,
+    sequence -> index into them: this run's for the sequences it computes (``computed``), the
+    recorded one for a finished sequence it keeps; one an older mata-eval made (no record), the
+    setup its manifest names."""
+    old = old or {}
+    before, was = old.get("setups") or [_setup_identity(old)], old.get("made_by") or {}
+    setups: list[dict[str, Any]] = []
+    made_by = {}
+    finished = {p.stem for p in out.glob("*.txt")}
+    for name in sorted(finished | computed):
+        kept = was.get(name)
+        made = _setup_identity(setup) if name in computed else \
+            before[kept] if isinstance(kept, int) and 0 <= kept < len(before) else before[-1]
+        if made not in setups:
+            setups.append(made)
+        made_by[name] = setups.index(made)
+    return {"setups": setups, "made_by": made_by}
+
+
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
                     only: list[str] | None = None) -> Path:
     """Create the run folder and its manifest (with the protocol's warnings ``notes``); refuse
@@ -239,9 +276,11 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
         if not force:
             raise ResultsConflict(why)
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
-    inputs["groundtruth"] = groundtruth_record(exp, spec, old, force, only)   # (none kept once cleared)
+    computed, setup = to_compute(out, spec, force, only), _setup()
+    inputs["groundtruth"] = groundtruth_record(exp, spec, old, computed, only)   # (none kept once cleared)
+    inputs.update(made_by_record(out, old, setup, computed))
     try:
-        _write_manifest(out, exp, spec, inputs, notes, _setup())
+        _write_manifest(out, exp, spec, inputs, notes, setup)
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
         kept = "the results there stay" if results.holds_results(out) else "the folder holds no results"
         raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran ({kept}: "

@@ -379,6 +379,8 @@ def evaluate_results(
         # the result files scored (a report scores the run again when one was edited since)
         "results_sha256": {k: results.results_sha256(d, k) for k in list(per_seq) + list(unscorable)
                            if (d / f"{k}.txt").is_file()} if layout == "mata" else {},
+        # packages whose version differs among the setups that made the scored results (a resume after an upgrade)
+        "mixed_versions": results.mixed_versions(manifest, per_seq),
         # sequences whose tracker results were made on other ground truth (the manifest's record)
         "other_groundtruth": results.changed_run_inputs(
             manifest.get("groundtruth"), scored, (manifest.get("config") or {}).get("occlusion") is not None),
