@@ -214,6 +214,23 @@ def test_the_manifest_says_which_setup_made_each_result(tmp_path, monkeypatch, c
     assert len(manifest["setups"]) == 1 and manifest["made_by"] == {"good": 0, "nan": 0}
 
 
+def test_a_ray_node_with_other_package_versions_fails_its_task_saying_which(tmp_path):
+    """On a cluster, a node with another numpy than the driver's made results that the manifest
+    attributes to the driver's setup: its task fails instead, naming the package and both
+    versions; a node with the driver's versions runs it (the task function alone, no cluster)."""
+    from mata_eval.run.executors import _ray_task
+    from mata_eval.run.tasks import Task
+
+    exp = _exp(tmp_path, dataset_block="{name: toy, sequences: [good]}")
+    task = Task(0, "good", 6, (exp.runs[0].name,))
+    driver = {**results.package_versions(), "numpy": "0.1"}
+    (out,) = _ray_task(exp, task, str(tmp_path), driver)
+    assert out.boxes is None and out.reason.startswith("Ray node ")
+    assert f"numpy {np.__version__} there, 0.1 on the driver" in out.reason
+    (out,) = _ray_task(exp, task, str(tmp_path), results.package_versions())
+    assert not out.reason and out.boxes.shape == (6, 4)
+
+
 def test_an_interrupted_forced_rerun_loses_nothing(tmp_path, monkeypatch):
     """--force redoes finished sequences in place: stopped after its first new result, the
     others still hold their earlier results (QA pass: all were deleted before the run)."""

@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import multiprocessing
 import os
+import platform
 import signal
 import sys
 import threading
@@ -20,7 +21,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterator, Protocol
 
 from ..core.processes import die_with_parent
-from . import stop
+from . import results, stop
 from .config import Experiment
 from .tasks import SequenceResult, Task, failed, run_task
 
@@ -243,8 +244,8 @@ class RayExecutor:
     def run(self, exp: Experiment, tasks: list[Task], done: Done) -> None:
         ray = self.ray
         remote = ray.remote(num_cpus=1, max_retries=1)(_ray_task)
-        exp_ref = ray.put(exp)
-        pending = {remote.remote(exp_ref, task, os.getcwd()): task for task in tasks}
+        exp_ref, versions = ray.put(exp), results.package_versions()
+        pending = {remote.remote(exp_ref, task, os.getcwd(), versions): task for task in tasks}
         # a stop signal is taken between two waits: raised inside ray.wait's compiled code it
         # came out as a SystemError traceback, exit status 1
         with stop.deferred():
@@ -276,9 +277,18 @@ class RayExecutor:
                                 f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
 
 
-def _ray_task(exp: Experiment, task: Task, cwd: str) -> list[SequenceResult]:
+def _ray_task(exp: Experiment, task: Task, cwd: str, versions: dict[str, str]) -> list[SequenceResult]:
     """On a node: relative dataset roots mean the same as for the driver when its folder exists
-    there too (a shared file system, or data staged at the same path on every node)."""
+    there too (a shared file system, or data staged at the same path on every node). A node
+    whose package versions differ from the driver's (``versions``: what the manifest records)
+    fails the task, saying which: its results would be another setup's, mixed in silently."""
+    here = results.package_versions()
+    if here != versions:
+        differ = "; ".join(f"{k} {here.get(k, 'absent')} there, {versions.get(k, 'absent')} on the driver"
+                           for k in sorted(set(here) | set(versions)) if here.get(k) != versions.get(k))
+        return failed(task, f"Ray node {platform.node()} runs other package versions than the driver ({differ}): "
+                            "install the driver's versions on every node (or its environment with a Ray "
+                            "runtime_env), then rerun to resume")
     if os.path.isdir(cwd):
         os.chdir(cwd)
     one_thread_per_process()
