@@ -277,15 +277,21 @@ class RayExecutor:
                                 f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
 
 
+def _compared(versions: dict[str, str]) -> dict[str, str]:
+    """Package versions as nodes are compared: Python by its minor version (a patch release does
+    not change the numbers)."""
+    return {k: ".".join(v.split(".")[:2]) if k == "python" else v for k, v in versions.items()}
+
+
 def _ray_task(exp: Experiment, task: Task, cwd: str, versions: dict[str, str]) -> list[SequenceResult]:
     """On a node: relative dataset roots mean the same as for the driver when its folder exists
     there too (a shared file system, or data staged at the same path on every node). A node
     whose package versions differ from the driver's (``versions``: what the manifest records)
     fails the task, saying which: its results would be another setup's, mixed in silently."""
-    here = results.package_versions()
-    if here != versions:
-        differ = "; ".join(f"{k} {here.get(k, 'absent')} there, {versions.get(k, 'absent')} on the driver"
-                           for k in sorted(set(here) | set(versions)) if here.get(k) != versions.get(k))
+    here, driver = _compared(results.package_versions()), _compared(versions)
+    differ = "; ".join(f"{k} {here.get(k, 'absent')} there, {driver.get(k, 'absent')} on the driver"
+                       for k in sorted(set(here) | set(driver)) if here.get(k) != driver.get(k))
+    if differ:
         return failed(task, f"Ray node {platform.node()} runs other package versions than the driver ({differ}): "
                             "install the driver's versions on every node (or its environment with a Ray "
                             "runtime_env), then rerun to resume")
