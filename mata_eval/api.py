@@ -96,7 +96,7 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
 
     ``dataset``: a dataset plugin name (``mata-eval list``; an unknown one is a ValueError
     naming those that exist); ``root``: its folder; more of its parameters as keywords
-    (``sequences=[...]``, ``fps=30``); ``profile``: the metric profile (``default``,
+    (``sequences=[...]``, ``fps=30``; None: the default); ``profile``: the metric profile (``default``,
     ``pysot-toolkit``, ``got10k``, ...). As ``mata-eval eval``: without ``root``, a mata-eval
     run folder of this dataset (the first one given) is scored on the run's own dataset
     parameters, the keywords on top, and each run folder with its run's occlusion augmentation."""
@@ -114,7 +114,8 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
         raise ValueError(exc.args[0]) from None
     folders = [Path(folder)] if isinstance(folder, (str, Path)) else [Path(f) for f in folder]
     manifests = [run_manifest(f, dataset) for f in folders]
-    values = {**dataset_params, **({} if root is None else {"root": str(root)})}
+    values = {k: v for k, v in dataset_params.items() if v is not None}   # None: the default
+    values.update({} if root is None else {"root": str(root)})
     first = manifests[0] if folders and root is None else {}
     if first:
         values = run_dataset_values(first, values)

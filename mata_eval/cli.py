@@ -132,7 +132,7 @@ def _other_runs_scores(exp: Any, names: Sequence[str]) -> list:
         if spec.name in names or not any(d.glob("*.txt")):
             continue
         try:
-            if (read_manifest(d) or {}).get("config_hash") == spec.config_hash:
+            if spec.made(read_manifest(d) or {}):
                 others.append(scores_for(d))
         except (ScoresUnavailable, OSError, ValueError) as exc:
             print(f"plots: {spec.name} left out ({exc})")
@@ -224,12 +224,13 @@ def cmd_synth(args: argparse.Namespace) -> int:
 
 
 def _dataset_params(name: str, root: str | None, extra: Mapping[str, Any] | None = None) -> tuple[type, Any]:
-    """The dataset plugin ``name`` and its parameters built with ``{"root": root, **extra}``."""
+    """The dataset plugin ``name`` and its parameters built with ``{"root": root, **extra}``
+    (a value None: the parameter's default)."""
     from .core.params import build_params
     from .core.registry import load_registry
 
     cls = load_registry().get("dataset", name).cls
-    values = dict(extra or {})
+    values = {k: v for k, v in (extra or {}).items() if v is not None}
     if root is not None:
         values["root"] = root
     return cls, build_params(cls.Params, values)
@@ -247,6 +248,8 @@ def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
     are relative to, values as JSON has them."""
     out = {k: str((cwd / v).resolve()) if k in ("root", "annotations") and isinstance(v, str) else v
            for k, v in params.items() if v is not None}
+    if isinstance(out.get("sequences"), list):   # the same names in another order: the same dataset
+        out["sequences"] = sorted(set(out["sequences"]), key=str)
     return json.loads(json.dumps(out, default=str))
 
 
@@ -888,8 +891,8 @@ def _add_eval(subparsers) -> None:
     p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
     p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="another dataset parameter (repeatable); for a run folder without --root, on top of the "
-                        "run's own (KEY=null: the default)")
+                   help="another dataset parameter (repeatable; KEY=null: its default); for a run folder without "
+                        "--root, on top of the run's own")
     p.add_argument("--layout", choices=("auto",) + LAYOUTS, default="auto",
                    help="results layout (default: detected)")
     p.add_argument("--profile", choices=tuple(PROFILES), default="default",

@@ -388,3 +388,33 @@ def test_eval_of_two_runs_writes_only_the_scores_of_the_run_whose_dataset_it_loa
     assert f"wrote {one / 'scores.json'}" in out and f"{run}: scores.json not written there" in out
     assert not (run / "scores.json").exists()
     assert json.loads((one / "scores.json").read_text())["meta"]["dataset"] == "folder"
+
+
+def test_report_follows_the_sequences_the_experiment_lists_now(workdir, capsys):
+    """The dataset's `sequences` list is not in the config hash (a run folder resumes when it
+    changes), so a run's scores.json may be of another list than its experiment holds now (the
+    list edited and another run of the matrix resumed alone, or none): a report scores it again
+    against the list, naming listed sequences without results and leaving removed ones out of
+    the row (QA pass: the old scores.json was shown as it was, without a word)."""
+    run, exp = workdir / "out" / "exp", workdir / "exp.yaml"
+    listed = lambda names: exp.write_text(exp.read_text().replace("root: data}", f"root: data, sequences: {names}}}")
+                                          if "sequences" not in exp.read_text() else
+                                          re.sub(r"sequences: \[.*\]", f"sequences: {names}", exp.read_text()))
+    assert main(["report", str(run)]) == 0                      # scores.json of a and b
+    listed("[a]")
+    capsys.readouterr()
+    assert main(["report", str(run)]) == 0
+    out, err = capsys.readouterr()
+    assert f"{run}: scored again: the sequences the experiment lists for it changed since its scores.json" in err
+    assert "1 result file(s) match no sequence of folder: b (not in the table)" in out
+    assert sorted(json.loads((run / "scores.json").read_text())["sequences"]) == ["a"]
+    assert main(["report", str(run)]) == 0                      # scored on the list: trusted
+    assert "scored again" not in capsys.readouterr().err
+    (workdir / "data" / "c").mkdir()
+    (workdir / "data" / "b" / "img").rename(workdir / "data" / "c" / "img")
+    (workdir / "data" / "c" / "groundtruth_rect.txt").write_text(BOX * N)
+    listed("[c, b, a]")
+    assert main(["report", str(run)]) == 0
+    out, err = capsys.readouterr()
+    assert "scored again: the sequences the experiment lists" in err and "1 sequence(s) without results: c" in out
+    assert sorted(json.loads((run / "scores.json").read_text())["sequences"]) == ["a", "b"]

@@ -541,3 +541,22 @@ def test_one_folder_scored_under_several_profiles_gives_rows_told_apart(tmp_path
     assert [r.name for r in distinct_names(both)] == [
         "two (jetson/results, default)", "two (jetson/results, got10k)",
         "two (desktop/results, default)", "two (desktop/results, got10k)"]
+
+
+def test_results_of_several_package_versions_are_noted_and_every_setup_is_in_the_summary(tmp_path):
+    """A run resumed after an upgrade (manifest ``setups`` / ``made_by``): the paper table notes
+    the packages whose versions differ, and the summary's provenance lists each setup's commit
+    and machine, not only the last run's (QA pass: neither was said)."""
+    from mata_eval.report.paper import run_meta
+
+    d = make_run(tmp_path, "a", config(), {"s1": 5, "s2": 5})
+    manifest = results.read_manifest(d)
+    old = {"versions": {"numpy": "1.26.4"}, "environment": {}, "git_commit": "0ld", "machine": {"cpu": "laptop"}}
+    new = {"versions": {"numpy": "2.1.0"}, "environment": {}, "git_commit": "abc123", "machine": {"cpu": "test"}}
+    results.write_manifest(d, {**manifest, "setups": [old, new], "made_by": {"s1": 0, "s2": 1}})
+    evaluate_run(d, [Sequence(s, np.tile(GT, (N, 1))) for s in ("s1", "s2")])
+    runs = load_runs([d])
+    assert build_table("protocols", runs).notes == [
+        "a: its results were made with different package versions (numpy 1.26.4, 2.1.0)"]
+    meta = run_meta(runs)
+    assert "git commit: 0ld, abc123" in meta and "machine: cpu=laptop; cpu=test" in meta

@@ -4,6 +4,7 @@ redoes; a changed configuration never mixes with old results."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import re
@@ -174,6 +175,14 @@ def test_a_changed_sequence_selection_resumes(tmp_path):
     assert json.loads((run / "manifest.json").read_text())["config"]["dataset"]["sequences"] == ["nan"]
     with pytest.raises(ResultsConflict, match=r"different configuration \(tracker\.nan_after: -1 then, 100 now;"):
         run_experiment(selection("[good, nan]", "{name: shift, nan_after: 100}"), **quiet)
+    # a folder of a mata-eval that hashed the list too (every folder made before: QA pass, all refused)
+    manifest = json.loads((run / "manifest.json").read_text())
+    exp = selection("[nan]")
+    manifest["config_hash"] = hashlib.sha256(json.dumps(exp.runs[0].resolved, sort_keys=True).encode()).hexdigest()[:16]
+    results.write_json(run / "manifest.json", manifest)
+    assert manifest["config_hash"] != exp.runs[0].config_hash
+    outcomes = {o.sequence: o.status for o in run_experiment(selection("[good, nan, broken]"), **quiet)}
+    assert outcomes == {"good": "skipped", "nan": "skipped", "broken": "failed"}
 
 
 def test_the_manifest_says_which_setup_made_each_result(tmp_path, monkeypatch, capsys):
@@ -209,9 +218,33 @@ def test_the_manifest_says_which_setup_made_each_result(tmp_path, monkeypatch, c
     cli._print_incomplete([scores])
     assert ("the results were made with different package versions (a run resumed after an upgrade): "
             "numpy 1.0, 2.0 (manifest.json `made_by`") in capsys.readouterr().out
+    # a --force rerun stopped after its first result: the others stay their makers' (QA pass: all
+    # were credited to it, as the manifest was written before anything ran)
+    monkeypatch.setattr(runner, "_setup", lambda: setup("3.0", ["mata-eval", "run", "c"]))
+    write, written = results.write_sequence, []
+
+    def write_one_then_stop(*args, **kwargs):
+        if written:
+            raise KeyboardInterrupt
+        written.append(args[1])
+        write(*args, **kwargs)
+
+    monkeypatch.setattr(results, "write_sequence", write_one_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_experiment(selection("[good, nan]"), force=True, **quiet)
+    monkeypatch.setattr(results, "write_sequence", write)
+    manifest = json.loads((run / "manifest.json").read_text())
+    made = {k: manifest["setups"][i]["versions"]["numpy"] for k, i in manifest["made_by"].items()}
+    assert made == {"good": "1.0", "nan": "2.0", written[0]: "3.0"}
     run_experiment(selection("[good, nan]"), force=True, **quiet)
     manifest = json.loads((run / "manifest.json").read_text())
     assert len(manifest["setups"]) == 1 and manifest["made_by"] == {"good": 0, "nan": 0}
+    # a record edited into another shape reads as none: kept results go to the manifest's own setup
+    for setups, made_by in (({"0": {}}, {"good": 0}), (["x"], {"good": 0}), ([{}], ["good"]), ([{}], {"good": "0"})):
+        results.write_json(run / "manifest.json", {**manifest, "setups": setups, "made_by": made_by})
+        assert evaluate_results(run, seqs).meta["mixed_versions"] == {}
+        run_experiment(selection("[good, nan]"), **quiet)
+        assert json.loads((run / "manifest.json").read_text())["made_by"] == {"good": 0, "nan": 0}
 
 
 def test_a_ray_node_with_other_package_versions_fails_its_task_saying_which(tmp_path):

@@ -481,6 +481,9 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
         if r.scores.failures or r.scores.missing:
             t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
                            f"sequence(s) are not in its means (over {r.scores.summary.overall.n_sequences} sequence(s))")
+        if mixed := r.scores.meta.get("mixed_versions"):   # a run resumed after an upgrade
+            t.notes.append(f"{r.name}: its results were made with different package versions ("
+                           + "; ".join(f"{k} {', '.join(v)}" for k, v in mixed.items()) + ")")
     return t
 
 
@@ -495,7 +498,8 @@ def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
         if not m:
             continue
         made = [(exps, m.get("experiment"))]
-        for setup in m.get("setups") or [m]:   # (an older manifest: its own, the last run's)
+        setups, made_by = results.setup_record(m)
+        for setup in [setups[i] for i in sorted(set(made_by.values()))] or [results.setup_identity(m)]:
             made += [(commits, setup.get("git_commit")), (machines, _machine_line(setup.get("machine")))]
         for lst, v in made:
             if v and v not in lst:

@@ -132,8 +132,19 @@ class RunSpec:
     def config_hash(self) -> str:
         """What the run's results depend on: its resolved configuration without the dataset's
         ``sequences`` selection (:func:`without_selection`)."""
-        text = json.dumps(without_selection(self.resolved), sort_keys=True, default=str)
-        return hashlib.sha256(text.encode()).hexdigest()[:16]
+        return _hash(without_selection(self.resolved))
+
+    def made(self, manifest: Mapping[str, Any]) -> bool:
+        """Whether a run folder's manifest records this configuration: its hash, or (a folder of
+        a mata-eval that hashed the ``sequences`` selection too) its recorded configuration."""
+        config = manifest.get("config")
+        return manifest.get("config_hash") == self.config_hash or (
+            isinstance(config, Mapping) and _hash(without_selection(config)) == self.config_hash)
+
+
+def _hash(resolved: Mapping[str, Any]) -> str:
+    text = json.dumps(resolved, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def without_selection(resolved: Mapping[str, Any]) -> dict[str, Any]:

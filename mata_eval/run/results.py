@@ -320,17 +320,59 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+#: what tells two setups apart: what a manifest records of the process that ran, the command
+#: line aside (runner._setup)
+SETUP_KEYS = ("versions", "environment", "git_commit", "machine")
+
+
+def setup_identity(record: dict) -> dict[str, Any]:
+    """The setup a manifest records at its top level (the last run's): its SETUP_KEYS, without
+    the command line (``machine.argv``), as JSON has them."""
+    machine = record.get("machine")
+    if isinstance(machine, dict):
+        machine = {k: v for k, v in machine.items() if k != "argv"}
+    return json.loads(json.dumps({**{k: record.get(k) for k in SETUP_KEYS}, "machine": machine}, default=str))
+
+
+def setup_record(manifest: dict) -> tuple[list[dict], dict[str, int]]:
+    """A run folder manifest's ``setups`` (the distinct :func:`setup_identity` of the runs that
+    made its results) and ``made_by`` (sequence -> index into them), checked: a record edited
+    into another shape reads as none, an entry that is no index into ``setups`` is dropped."""
+    setups, made_by = manifest.get("setups"), manifest.get("made_by")
+    if not (isinstance(setups, list) and all(isinstance(s, dict) for s in setups) and isinstance(made_by, dict)):
+        return [], {}
+    return setups, {k: v for k, v in made_by.items()
+                    if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < len(setups)}
+
+
+def record_made_by(run_dir: Path, seq: str, made: bool) -> None:
+    """Credit the result of ``seq`` just written (``made``; a failure leaves none) to the setup
+    of the run writing it, the one its manifest names (:func:`setup_identity`)."""
+    manifest = read_manifest(run_dir)
+    if manifest is None:   # the folder was emptied during the run: the next write says so (runner.write_result)
+        return
+    setups, made_by = setup_record(manifest)
+    made_by.pop(seq, None)
+    if made:
+        here = setup_identity(manifest)
+        setups = setups if here in setups else setups + [here]
+        made_by[seq] = setups.index(here)
+    used = sorted(set(made_by.values()))   # a setup whose results were all redone goes
+    write_manifest(run_dir, {**manifest, "setups": [setups[i] for i in used],
+                             "made_by": {k: used.index(v) for k, v in sorted(made_by.items())}})
+
+
 def mixed_versions(manifest: dict, names: Iterable[str]) -> dict[str, list[str]]:
-    """Package -> the versions that made the results of the sequences ``names`` of a run folder,
-    for the packages whose version differs among them (a run resumed after an upgrade; the
-    manifest's ``setups`` and ``made_by``); empty when one setup made them all or there is no
-    record (an older mata-eval)."""
-    setups, made_by = manifest.get("setups") or [], manifest.get("made_by") or {}
-    used = {made_by.get(n) for n in names}
-    versions = [(setups[i].get("versions") or {}) for i in sorted(k for k in used if isinstance(k, int))
-                if 0 <= i < len(setups)]
+    """Package -> the versions that made the results of the sequences ``names`` of a run folder
+    (in the order the setups first ran), for the packages whose version differs among them (a
+    run resumed after an upgrade: :func:`setup_record`); empty when one setup made them all or
+    there is no record (an older mata-eval)."""
+    setups, made_by = setup_record(manifest)
+    used = sorted({made_by[n] for n in names if n in made_by})
+    versions = [setups[i].get("versions") if isinstance(setups[i].get("versions"), dict) else {} for i in used]
     packages = sorted({k for v in versions for k in v})
-    return {k: sorted({str(v.get(k)) for v in versions}) for k in packages if len({v.get(k) for v in versions}) > 1}
+    return {k: list(dict.fromkeys(str(v.get(k)) for v in versions)) for k in packages
+            if len({str(v.get(k)) for v in versions}) > 1}
 
 
 def git_commit(path: Path | None = None) -> str | None:

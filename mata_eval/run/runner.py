@@ -190,7 +190,7 @@ def _conflict(exp: Experiment, spec: RunSpec, old: dict[str, Any] | None, inputs
     if old is None:
         return (f"{out} holds results but no {results.MANIFEST}: they cannot be matched to this configuration; "
                 f"delete them, {redo}") if results.holds_results(out) else None
-    if old.get("config_hash") != spec.config_hash:
+    if not spec.made(old):
         return (f"{out} holds results of a different configuration ({_change(old, spec)}config hash "
                 f"{old.get('config_hash')} != {spec.config_hash}); {redo}")
     changed = _read_beyond_the_configuration(old, inputs)
@@ -227,35 +227,21 @@ def _setup() -> dict[str, Any]:
             "git_commit": results.git_commit(), "machine": results.machine()}
 
 
-#: what tells two setups apart (:func:`_setup` without the command line, ``machine.argv``)
-SETUP_KEYS = ("versions", "environment", "git_commit", "machine")
-
-
-def _setup_identity(setup: dict[str, Any]) -> dict[str, Any]:
-    machine = {k: v for k, v in (setup.get("machine") or {}).items() if k != "argv"}
-    return json.loads(json.dumps({**{k: setup.get(k) for k in SETUP_KEYS}, "machine": machine}, default=str))
-
-
-def made_by_record(out: Path, old: dict | None, setup: dict[str, Any], computed: set[str]) -> dict[str, Any]:
-    """Which setup made each result of the run folder ``out``, for the manifest (whose
-    top-level versions, commit and machine are those of its last run, also after a resume with
-    other code): ``setups``, the distinct setups (:func:`_setup_identity`), and ``made_by``,
-    sequence -> index into them: this run's for the sequences it computes (``computed``), the
-    recorded one for a finished sequence it keeps; one an older mata-eval made (no record), the
-    setup its manifest names."""
+def made_by_record(out: Path, old: dict | None) -> dict[str, Any]:
+    """The manifest's ``setups`` and ``made_by`` (:func:`results.setup_record`) for the finished
+    results a run keeps in its folder ``out``: the recorded setup of each, or for one without a
+    record (a folder of an older mata-eval) the setup its manifest ``old`` names. Each result
+    the run writes is then credited to its own setup (:func:`results.record_made_by`): a
+    ``--force`` rerun stopped half-way leaves the results it did not redo to their makers."""
     old = old or {}
-    before, was = old.get("setups") or [_setup_identity(old)], old.get("made_by") or {}
-    setups: list[dict[str, Any]] = []
-    made_by = {}
-    finished = {p.stem for p in out.glob("*.txt")}
-    for name in sorted(finished | computed):
-        kept = was.get(name)
-        made = _setup_identity(setup) if name in computed else \
-            before[kept] if isinstance(kept, int) and 0 <= kept < len(before) else before[-1]
-        if made not in setups:
-            setups.append(made)
-        made_by[name] = setups.index(made)
-    return {"setups": setups, "made_by": made_by}
+    before, was = results.setup_record(old)
+    fallback = results.setup_identity(old)
+    made = {p.stem: before[was[p.stem]] if p.stem in was else fallback for p in out.glob("*.txt")}
+    setups = []
+    for s in before + [fallback]:   # in the order they first ran
+        if s in made.values() and s not in setups:
+            setups.append(s)
+    return {"setups": setups, "made_by": {k: setups.index(s) for k, s in sorted(made.items())}}
 
 
 def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str] = (),
@@ -276,11 +262,10 @@ def prepare_run_dir(exp: Experiment, spec: RunSpec, force: bool, notes: list[str
         if not force:
             raise ResultsConflict(why)
         results.clear_run(out)   # all of them (not only --sequences'): none may be mixed with the new
-    computed, setup = to_compute(out, spec, force, only), _setup()
-    inputs["groundtruth"] = groundtruth_record(exp, spec, old, computed, only)   # (none kept once cleared)
-    inputs.update(made_by_record(out, old, setup, computed))
+    inputs["groundtruth"] = groundtruth_record(exp, spec, old, to_compute(out, spec, force, only), only)
+    inputs.update(made_by_record(out, old))   # (none kept once cleared)
     try:
-        _write_manifest(out, exp, spec, inputs, notes, setup)
+        _write_manifest(out, exp, spec, inputs, notes, _setup())
     except OSError as exc:   # disk full, read-only: one line naming the file (was a bare Errno)
         kept = "the results there stay" if results.holds_results(out) else "the folder holds no results"
         raise CannotWrite(f"cannot write {out / results.MANIFEST}: {exc.strerror or exc}; nothing ran ({kept}: "
@@ -319,12 +304,14 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
     try:
         if r.reason:
             results.write_failure(out, r.sequence, r.reason, r.traceback)
+            results.record_made_by(out, r.sequence, made=False)
         else:
             if r.bad_frames:
                 results.write_bad_frames(out, r.sequence, dict(r.bad_frames))
             else:   # one an earlier attempt skipped is not this result's
                 results.inside(out, r.sequence, ".bad_frames.json").unlink(missing_ok=True)
             results.write_sequence(out, r.sequence, r.boxes, r.frames_csv, r.trace_csv)
+            results.record_made_by(out, r.sequence, made=True)
     except OSError as exc:
         if exc.errno not in FOLDER_ERRORS:   # this sequence's own file (a name the file system refuses)
             return SequenceOutcome(r.run, r.sequence, "failed", f"cannot write its results: {exc}")

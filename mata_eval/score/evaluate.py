@@ -497,10 +497,11 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
     if (d / SCORES).is_file():
         scores = load_scores(d)
         stale = stale_reason(scores, d) if manifest is not None else None
-        changed = changed_since_scored(scores, d, manifest) if stale is None and manifest is not None else []
+        if stale is None and manifest is not None:
+            changed, stale = changed_since_scored(scores, d, manifest)
         if stale is None and not changed:
             return scores
-        if stale and stale.startswith("the result files"):
+        if stale and stale.startswith(("the result files", "the sequences the experiment")):
             log(f"{d}: scored again: {stale} its {SCORES} was written")
         if changed:
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
@@ -535,30 +536,39 @@ def _run_spec(d: Path, manifest: dict, what: str, hint: str) -> RunSpec:
     spec = next((r for r in exp.runs if r.name == manifest.get("run")), None)
     if spec is None:
         raise ScoresUnavailable(f"{what} run {manifest.get('run')!r} is no longer in {exp_file}; {hint}")
-    if spec.config_hash != manifest.get("config_hash"):
+    if not spec.made(manifest):
         raise ScoresUnavailable(f"{what} {exp_file} now describes run {spec.name!r} differently "
                                 f"(config hash changed); {hint}")
     return spec
 
 
-def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> list[str]:
-    """The sequences whose ground truth (its sha256, ``meta["groundtruth"]``) differs from their
-    annotations now (read once per dataset and process). Empty when the scores have no record
-    (an older mata-eval), the experiment or its dataset cannot be read (a copied folder), or the
-    dataset is generated (a plugin with ``check()``, the synthetic suite: reading it would build
-    it, and no one edits it by hand): the scores are trusted then."""
+def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> tuple[list[str], str | None]:
+    """What the experiment file says now that the run's scores.json does not reflect: (the
+    sequences whose ground truth, its sha256 in ``meta["groundtruth"]``, differs from their
+    annotations now, read once per dataset and process; why the sequences the experiment lists
+    for the run are not those scored, or None). Nothing when the experiment or its dataset
+    cannot be read (a copied folder): the scores are trusted then. The ground truth is not
+    compared where the scores have no record (an older mata-eval) or the dataset is generated
+    (a plugin with ``check()``, the synthetic suite: reading it would build it, and no one
+    edits it by hand)."""
     from ..run.tasks import base_sequences
 
-    if not scores.meta.get("groundtruth"):
-        return []
     try:
         with results.in_run_cwd(manifest):
             spec = _run_spec(Path(run_dir), manifest, "", "")
-            if hasattr(spec.dataset.cls, "check"):
-                return []
-            return results.changed_groundtruth(scores.meta["groundtruth"], base_sequences(spec))
+            generated = hasattr(spec.dataset.cls, "check")
+            # the sequences listed now (not in the config hash: run.config.without_selection)
+            listed = spec.resolved["dataset"].get("sequences")
+            names = set(listed) if listed is not None else None if generated else \
+                {s.name for s in base_sequences(spec)}
+            scored = set(scores.sequences) | set(scores.missing)   # (a failure of a sequence left out stays)
+            reselected = ("the sequences the experiment lists for it changed since" if names is not None and (
+                names - scored - set(scores.failures) or scored - names) else None)
+            if not scores.meta.get("groundtruth") or generated:
+                return [], reselected
+            return results.changed_groundtruth(scores.meta["groundtruth"], base_sequences(spec)), reselected
     except Exception:   # whatever a dataset plugin raises: this check only adds to what scores.json says
-        return []
+        return [], None
 
 
 def evaluate_experiment(exp: Experiment, only: list[str] | None = None) -> list[RunScores]:

@@ -28,13 +28,13 @@ def run_manifest(folder: str | Path, dataset: str) -> dict[str, Any]:
 
 def run_dataset_values(manifest: Mapping[str, Any], given: Mapping[str, Any]) -> dict[str, Any]:
     """The run's dataset parameters (``manifest``: :func:`run_manifest`) with those the user
-    gave on top (``given``; ``None`` sets a parameter back to its default): a ``--set`` changed
+    gave on top (``given``; ``None`` leaves a parameter out: its default): a ``--set`` changed
     one of them and dropped the others (for the synthetic suite, a 1.1 GB default suite was
     rendered and then refused on its frame count). The user's relative paths are made absolute,
     as the run's are read from the folder it ran in (:func:`results.in_run_cwd`)."""
-    own = {k: v for k, v in manifest["config"]["dataset"].items() if k != "name" and v is not None}
+    own = {k: v for k, v in manifest["config"]["dataset"].items() if k != "name"}
     mine = {k: str(Path(v).resolve()) if k in PATH_PARAMS and isinstance(v, str) else v for k, v in given.items()}
-    return {**own, **mine}
+    return {k: v for k, v in {**own, **mine}.items() if v is not None}
 
 
 def as_the_run_saw_them(seqs: list, config: Mapping[str, Any], lost: Callable[[str], None]) -> list:
