@@ -752,8 +752,8 @@ def cmd_profile(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)   # (QA pass: a folder failed at the end, naming a temporary file)
-    if out.is_dir() or not out.parent.is_dir():
-        what = "is a folder" if out.is_dir() else f"is in {out.parent}, which does not exist"
+    if out.is_dir() or out.suffix.lower() not in (".json", ".yaml", ".yml"):
+        what = "is a folder" if out.is_dir() else "has neither .json nor .yaml at its end"
         print(f"error: --out {args.out} {what}: give the timing profile file to write (.json, or .yaml)",
               file=sys.stderr)
         return 2
@@ -779,8 +779,12 @@ def cmd_profile(args: argparse.Namespace) -> int:
             print(f"error: {exp.path}: no run {args.run!r} (runs: {', '.join(r.name for r in exp.runs)})", file=sys.stderr)
             return 2
         spec = matches[0]
-    if args.threads:   # before the preflight, which builds the blocks (ONNX Runtime sessions read it)
+    if args.threads:   # before the preflight, which builds the blocks
         _set_threads(args.threads)
+        if getattr(spec.tracker.params, "threads", None) == 0:   # (ONNX Runtime does not read OMP_NUM_THREADS)
+            print(f"note: --threads {args.threads} does not reach the tracker: its `threads: 0` leaves ONNX Runtime "
+                  f"and torch at their own setting (all cores); set `threads: {args.threads}` in its block to "
+                  f"profile it on {args.threads}")
     # what validate and run check first (QA pass: a wrong checkpoint or backend was a traceback here);
     # the run asked for is profiled or refused, also one marked optional (it would be "skipped")
     spec = dataclasses.replace(spec, optional=False)
@@ -796,7 +800,12 @@ def cmd_profile(args: argparse.Namespace) -> int:
     except BlockError as exc:   # a block raised or returned what a run refuses: no profile
         print(f"error: run {spec.name}: {exc}; no profile written", file=sys.stderr)
         return 1
-    path = write_profile(profile, args.out)
+    try:   # (docs/jetson.md writes into profiles/, which a fresh checkout does not have)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        path = write_profile(profile, out)
+    except OSError as exc:
+        print(f"error: cannot write {out}: {exc.strerror or exc}; nothing written", file=sys.stderr)
+        return 1
     print(f"machine: {profile.machine.get('cpu')}" + (f"; GPU {', '.join(profile.machine['gpu'])}" if profile.machine.get("gpu") else "")
           + (f"; power mode {profile.machine['power_mode']}" if profile.machine.get("power_mode") else ""))
     print(f"run {spec.name}, sequence {profile.machine['run']['sequence']}: {args.frames} timed calls per block "
@@ -1008,7 +1017,9 @@ def _add_profile(subparsers) -> None:
     p.add_argument("--sequence", help="sequence of the run's dataset to use (default: the first)")
     p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="timed calls per block (default %(default)s)")
     p.add_argument("--warmup", type=int, default=DEFAULT_WARMUP, help="untimed calls first (default %(default)s)")
-    p.add_argument("--threads", type=_int_in(0), default=0, help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is)")
+    p.add_argument("--threads", type=_int_in(0), default=0,
+                   help="cap OpenCV/BLAS/torch CPU threads (0 = leave as is); a tracker's ONNX Runtime threads are "
+                        "its `threads:` parameter")
     p.add_argument("--time-scale", action="append", metavar="[BLOCK=]FACTOR",
                    help="the profile of a device FACTOR times slower (one block, or all), as the live protocol's "
                         "time_scale emulates it: latencies multiplied by FACTOR, and every block run at the "

@@ -51,6 +51,7 @@ class SleepTracker:
     @dataclass(frozen=True)
     class Params:
         sleep_s: float = param(0.02, "seconds per call")
+        threads: int = param(1, "library threads (0 = all cores), as the ONNX trackers have")
 
     def __init__(self, params):
         self.params = params
@@ -311,9 +312,22 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     # QA pass 14: a bad --out failed after the timing, naming a temporary file; profile of a file
     # whose eop reads the profile it is to write; --sequence named as --sequences
     for out, words in ((tmp_path, f"--out {tmp_path} is a folder: give the timing profile file to write"),
-                       (tmp_path / "no" / "p.json", f"is in {tmp_path / 'no'}, which does not exist")):
+                       (tmp_path / "p.txt", "p.txt has neither .json nor .yaml at its end")):   # (QA pass 16b: JSON in .txt)
         assert main(["profile", str(path), "--out", str(out)]) == 2
         assert words in capsys.readouterr().err
+    # its folder is made (QA pass 16b: docs/jetson.md's `--out profiles/orin-30W.json` failed on a fresh checkout)
+    import mata_eval.cli as cli
+
+    monkeypatch.setattr(cli, "_set_threads", lambda n: None)   # (not this test process's threads)
+    assert main(["profile", str(path), "--out", str(tmp_path / "profiles" / "p.json"), "--frames", "3",
+                 "--warmup", "1", "--threads", "1"]) == 0
+    assert read_profile(tmp_path / "profiles" / "p.json").block("tracker")
+    assert "does not reach the tracker" not in capsys.readouterr().out
+    # --threads does not reach ONNX Runtime: a tracker left at all cores is named (QA pass 16b)
+    path.write_text(path.read_text().replace("sleep_s: 0.02}", "sleep_s: 0.02, threads: 0}"))
+    assert main(["profile", str(path), "--out", str(tmp_path / "p.json"), "--frames", "3", "--warmup", "1",
+                 "--threads", "1"]) == 0
+    assert "note: --threads 1 does not reach the tracker: its `threads: 0`" in capsys.readouterr().out
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--sequence", "nope"])
     assert args.func(args) == 2
     assert "unknown sequence name(s) nope (--sequence); the sequences are: " in capsys.readouterr().err

@@ -161,3 +161,36 @@ def test_a_profile_measured_with_another_tracker_is_named(tmp_path, monkeypatch,
                    .replace(str(tmp_path / "out"), str(tmp_path / "out2")))   # (out: results of the profile's rate)
     assert main(["validate", str(exp)]) == 0
     assert "warning" not in capsys.readouterr().out
+
+
+def test_values_derived_from_the_samples_must_agree_with_them(tmp_path):
+    """rate_hz, mean_s and percentiles_s are written for people and every draw comes from the
+    samples (then the histogram): one edited by hand is refused, naming the key, instead of being
+    ignored (QA pass: rate_hz 30 -> 10 still ran the tracker at 30 Hz); so is a histogram beside
+    samples that it does not count."""
+    path = write_profile(profile_from_samples({"tracker": [0.03, 0.034, 0.032]}), tmp_path / "p.json")
+    doc = json.loads(path.read_text())
+    read_profile(path)   # as written: accepted
+    for key, value in (("rate_hz", 10.0), ("mean_s", 0.1), ("percentiles_s", {"50": 0.1})):
+        bad = tmp_path / f"bad_{key}.json"
+        bad.write_text(json.dumps({**doc, "blocks": {"tracker": {**doc["blocks"]["tracker"], key: value}}}))
+        with pytest.raises(ProfileError, match=rf"bad_{key}.json: key 'blocks.tracker.{key}.* but its samples give"):
+            read_profile(bad)
+    entry = {**doc["blocks"]["tracker"], "histogram": {"edges_s": [0.1, 0.2], "counts": [3]}}
+    bad = tmp_path / "hist.json"
+    bad.write_text(json.dumps({**doc, "blocks": {"tracker": entry}}))
+    with pytest.raises(ProfileError, match=r"blocks.tracker.histogram' does not count its samples_s"):
+        read_profile(bad)
+    alone = {k: v for k, v in doc["blocks"]["tracker"].items() if k == "samples_s"}   # samples alone: fine
+    (tmp_path / "alone.json").write_text(json.dumps({**doc, "blocks": {"tracker": alone}}))
+    assert read_profile(tmp_path / "alone.json").blocks["tracker"].rate_hz == pytest.approx(1 / 0.032)
+
+
+def test_a_profile_in_milliseconds_is_warned_of(tmp_path):
+    """QA pass: samples_s [50, 60, 70] (ms) ran the tracker at 0.4 Hz without a word."""
+    from mata_eval.run.scheduler import RateWarning
+
+    path = write_profile(profile_from_samples({"tracker": [50.0, 60.0, 70.0]}), tmp_path / "ms.json")
+    eop = EOP(EOP.Params(tracker_hz="profile", tracker_latency="profile", latency_profile=str(path)))
+    with pytest.warns(RateWarning, match=r"the tracker's median latency is 60 s: profile samples are in seconds"):
+        eop.timing(30.0)

@@ -12,13 +12,15 @@ File format (JSON, or YAML when the file name ends in ``.yaml`` / ``.yml``)::
       tracker:
         samples_s: [0.081, 0.079, ...]     # latency samples in seconds, and/or
         histogram: {edges_s: [0.07, 0.08, 0.09], counts: [12, 30]}
-        percentiles_s: {"50": 0.08, "90": 0.088, "99": 0.095}   # written for people; recomputed
-        rate_hz: 12.4                      # effective rate when run back to back = 1 / mean
+        mean_s: 0.0806                     # these three are written for people: a reader
+        percentiles_s: {"50": 0.08, "90": 0.088, "99": 0.095}   # refuses them when they disagree
+        rate_hz: 12.4                      # with the samples (1 / mean: back to back)
       egomotion: {...}
 
 Block names are the scheduler's (``tracker``, ``egomotion``, ``estimator``); other names are
 kept but unused. A block needs ``samples_s`` or ``histogram`` (or both; draws then use the
-samples). Writers: build the profile with :func:`profile_from_samples` and save it with
+samples, and the histogram must count them). To change a profile, edit its samples (e.g. scale
+them all) and delete the derived values, or measure with ``mata-eval profile --time-scale``. Writers: build the profile with :func:`profile_from_samples` and save it with
 :func:`write_profile`.
 """
 
@@ -201,10 +203,34 @@ def read_profile(path: str | Path) -> TimingProfile:
         if samples is None and edges is None:
             raise ProfileError(f"{where}': expected 'samples_s' and/or 'histogram'")
         blocks[name] = BlockProfile(samples, edges, counts)
+        _check_derived(entry, blocks[name], where)
     machine = doc.get("machine") or {}
     if not isinstance(machine, dict):
         raise ProfileError(f"{path}: key 'machine': expected a mapping")
     return TimingProfile(blocks, machine, doc.get("created"))
+
+
+def _check_derived(entry: Mapping[str, Any], block: BlockProfile, where: str) -> None:
+    """Refuse a profile whose values written for people (``mean_s``, ``rate_hz``,
+    ``percentiles_s``) or whose histogram beside the samples say other than its samples, from
+    which every draw is made (QA pass: ``rate_hz`` edited from 30 to 10, the tracker still ran
+    at 30 Hz without a word)."""
+    redo = ("draws use samples_s (then the histogram): edit those, e.g. scale every sample, and delete or "
+            "update the values derived from them (mean_s, rate_hz, percentiles_s)")
+    derived = {"mean_s": block.mean_s, "rate_hz": block.rate_hz,
+               **{f"percentiles_s.{q}": v for q, v in block.percentiles_s().items()}}
+    given = {k: entry[k] for k in ("mean_s", "rate_hz") if k in entry}
+    if isinstance(entry.get("percentiles_s"), Mapping):
+        given.update({f"percentiles_s.{q}": v for q, v in entry["percentiles_s"].items()
+                      if f"percentiles_s.{q}" in derived})
+    for key, value in given.items():
+        ok = isinstance(value, (int, float)) and math.isclose(float(value), derived[key], rel_tol=1e-6, abs_tol=1e-12)
+        if not ok:
+            raise ProfileError(f"{where}.{key}' is {value!r}, but its samples give {derived[key]:.6g}: {redo}")
+    if block.samples_s is not None and block.hist_edges_s is not None:
+        counts, _ = np.histogram(block.samples_s, bins=block.hist_edges_s)
+        if not np.array_equal(counts, block.hist_counts):
+            raise ProfileError(f"{where}.histogram' does not count its samples_s: {redo}; or keep only one of the two")
 
 
 def _float_array(value: Any, where: str) -> np.ndarray:

@@ -209,6 +209,11 @@ class EOP:
             if not isinstance(value, str) and value >= 1.0:
                 warnings.warn(RateWarning(f"eop: {key} {value:g} s: times are in seconds (for {value:g} ms "
                                           f"write {value / 1000:g})"))
+        for b in BLOCKS:   # (QA pass: samples_s [50, 60, 70] ran the tracker at 0.4 Hz without a word)
+            if "profile" in (getattr(p, f"{b}_hz"), getattr(p, f"{b}_latency")) and \
+                    (median := self._block_profile(b).percentiles_s((50,))["50"]) >= 1.0:
+                warnings.warn(RateWarning(f"eop: latency_profile {p.latency_profile}: the {b}'s median latency is "
+                                          f"{median:g} s: profile samples are in seconds (milliseconds divided by 1000)"))
 
 
 @hookimpl
