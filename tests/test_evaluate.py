@@ -4,6 +4,7 @@ the same numbers for the same boxes."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import zipfile
@@ -364,6 +365,9 @@ def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path):
     assert list(sc.sequences) == ["lap_time"] and not sc.missing
     assert sc.sequences["lap_time"].sr > 0.9   # exact boxes
     assert evaluate.stale_reason(sc, d) is None
+    # a scores.json whose block rates counted the initialisation (an older mata-eval) is scored again
+    older = dataclasses.replace(sc, meta={k: v for k, v in sc.meta.items() if k != "frequency_rule"})
+    assert evaluate.stale_reason(older, d).startswith("its block rates were computed by an older rule")
 
 
 def test_a_foreign_folder_whose_first_file_is_not_text_scores_the_others(tmp_path):

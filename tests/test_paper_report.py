@@ -205,9 +205,10 @@ def test_embedded_table_differences_and_frequencies(tmp_path):
     t = build_table("embedded", load_runs(runs))
     rows = md_rows(render(t, "markdown"))
     assert rows[0][:2] == ["VOT", "MATA"] and rows[0][2:5] == ["Embedded SR", "Embedded NT2F", "Embedded Freq."]
-    # tracker starts: every 3rd frame of 20 -> 7 starts in 2/3 s = 10.5 Hz; every 2nd -> 15 Hz
-    assert rows[2] == ["KCF", "✗", "50.0", "50.0", "10.5", "10.0", "10.0", "15.0", "40.0", "40.0", "30.0"]
-    assert rows[3] == ["", "✓", "70.0", "70.0", "10.5", "5.0", "5.0", "15.0", "30.0", "30.0", "30.0"]
+    # tracker starts: every 3rd frame of 20 -> 6 intervals after the first in 18 frames (0.6 s) =
+    # 10 Hz (the initialisation counted made it 7 starts in 2/3 s, 10.5 Hz); every 2nd -> 15 Hz
+    assert rows[2] == ["KCF", "✗", "50.0", "50.0", "10.0", "10.0", "10.0", "15.0", "40.0", "40.0", "30.0"]
+    assert rows[3] == ["", "✓", "70.0", "70.0", "10.0", "5.0", "5.0", "15.0", "30.0", "30.0", "30.0"]
     # mean |dSR|: EOP (10 + 5) / 2 = 7.5, LTP (40 + 30) / 2 = 35 -> 4.7x
     assert "mean |Delta SR|: EOP 7.5, LTP 35.0 points (LTP / EOP = 4.7x)" in t.notes
     tex = to_latex(t)  # the paper's column names; differences are absolute (its caption)

@@ -379,6 +379,7 @@ def evaluate_results(
         # the result files scored (a report scores the run again when one was edited since)
         "results_sha256": {k: results.results_sha256(d, k) for k in list(per_seq) + list(unscorable)
                            if (d / f"{k}.txt").is_file()} if layout == "mata" else {},
+        "frequency_rule": FREQUENCY_RULE,   # (scores.json of an older rule are scored again: stale_reason)
         # packages whose version differs among the setups that made the scored results (a resume after an upgrade)
         "mixed_versions": results.mixed_versions(manifest, per_seq),
         # sequences whose tracker results were made on other ground truth (the manifest's record)
@@ -426,6 +427,11 @@ def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "d
     return scores
 
 
+#: how the block rates of a scores.json were computed (metrics.frequencies): an older mata-eval
+#: counted the first start, the tracker's initialisation (10.5 Hz for 10 Hz on 40 frames)
+FREQUENCY_RULE = "first start left out"
+
+
 def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     """Why the scores read from a run folder's scores.json no longer describe its results
     (sequences finished or failed after they were written: a report made while a run was
@@ -443,6 +449,8 @@ def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     edited = [k for k, sha in recorded.items() if k in finished and results.results_sha256(d, k) != sha]
     if edited:
         return f"the result files of {', '.join(edited[:5])}{' ...' if len(edited) > 5 else ''} changed since"
+    if scores.frequencies and scores.meta.get("frequency_rule") != FREQUENCY_RULE:
+        return "its block rates were computed by an older rule (the initialisation counted) when"
     return None
 
 
@@ -501,7 +509,7 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
             changed, stale = changed_since_scored(scores, d, manifest)
         if stale is None and not changed:
             return scores
-        if stale and stale.startswith(("the result files", "the sequences the experiment")):
+        if stale and stale.startswith(("the result files", "the sequences the experiment", "its block rates")):
             log(f"{d}: scored again: {stale} its {SCORES} was written")
         if changed:
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"

@@ -1,5 +1,9 @@
 """How often each block ran (paper Table 4 "Freq."): scheduled rate on the camera clock and
-wall-clock rate, per sequence and summed over a dataset."""
+wall-clock rate, per sequence and summed over a dataset. Both leave out a block's first start,
+the tracker's initialisation (a template, a model loaded on first use): the rate is the number
+of intervals between starts over their span, so a block run every third frame of a 30 fps
+camera is at 10 Hz whatever the sequence's length (counting the initialisation gave 10.5 Hz on
+40 frames), and the wall-clock rate is that of the calls that follow it."""
 
 from __future__ import annotations
 
@@ -13,9 +17,11 @@ from .measures import json_float
 
 @dataclass(frozen=True)
 class BlockFrequency:
-    """How often a block ran. ``scheduled_hz``: starts per second of camera time (what the
-    protocol made it do, paper "Freq."); ``wall_hz``: 1 / mean wall-clock time of a call (how
-    fast it could go on this machine); NaN where unknown."""
+    """How often a block ran: ``starts`` counted after its first, over ``camera_seconds`` from
+    its first to its last start, and ``total_ms`` the wall time of those calls.
+    ``scheduled_hz``: starts per second of camera time (what the protocol made it do, paper
+    "Freq."); ``wall_hz``: 1 / mean wall-clock time of a call (how fast it could go on this
+    machine); NaN where unknown (fewer than two starts)."""
 
     starts: int
     camera_seconds: float
@@ -44,15 +50,19 @@ class BlockFrequency:
 
 def block_frequencies(wall_ms: Mapping[str, np.ndarray], n_frames: int, fps: float) -> dict[str, BlockFrequency]:
     """Frequencies of each block of one sequence from its per-frame wall times in ms (NaN where
-    the block did not start at that frame; architecture.md ``<seq>.frames.csv``). The camera
-    time of a sequence of ``n_frames`` frames is ``n_frames / fps``."""
+    the block did not start at that frame; architecture.md ``<seq>.frames.csv``), its first
+    start left out (module docstring); ``n_frames`` is the sequence's length (the wall times
+    may be shorter: a foreign results file)."""
     if fps <= 0:
         raise ValueError(f"fps must be > 0, got {fps}")
     out = {}
     for block, ms in wall_ms.items():
-        ms = np.asarray(ms, dtype=float)
-        started = np.isfinite(ms)
-        out[block] = BlockFrequency(int(started.sum()), n_frames / fps, float(ms[started].sum()))
+        ms = np.asarray(ms, dtype=float)[:n_frames]
+        frames = np.flatnonzero(np.isfinite(ms))
+        if len(frames) < 2:
+            out[block] = BlockFrequency(0, 0.0, 0.0)
+            continue
+        out[block] = BlockFrequency(len(frames) - 1, (frames[-1] - frames[0]) / fps, float(ms[frames[1:]].sum()))
     return out
 
 
