@@ -276,7 +276,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from .core.params import parse_key_values
     from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
-    from .score.run_dataset import as_the_run_saw_them, run_dataset_values, run_manifest
+    from .score.run_dataset import as_the_run_saw_them, manifest_or_nothing, run_dataset_values, run_manifest
 
     resolved = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     for twice in sorted({d for d in resolved if resolved.count(d) > 1}):
@@ -297,6 +297,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
+    if args.dataset is None:   # a mata-eval run folder names its own (QA pass 16b: --dataset was required)
+        config = (manifest_or_nothing(args.results_dirs[0]).get("config") or {})
+        args.dataset = (config.get("dataset") or {}).get("name") if isinstance(config.get("dataset"), dict) else None
+        if not isinstance(args.dataset, str):
+            print(f"error: {args.results_dirs[0]} is not a mata-eval run folder (no manifest.json naming its "
+                  "dataset): give --dataset NAME (and --root PATH)", file=sys.stderr)
+            return 2
+        print(f"dataset {args.dataset}, as {Path(args.results_dirs[0]) / 'manifest.json'} names it")
     all_scores = []
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
@@ -897,7 +905,8 @@ def _add_eval(subparsers) -> None:
     p.add_argument("results_dirs", nargs="+", metavar="RESULTS_DIR",
                    help="folder with one result file per sequence; several folders are scored in one "
                         "process (the annotations read once) and shown as the rows of one table")
-    p.add_argument("--dataset", required=True, help="dataset plugin name (see `mata-eval list`), e.g. dtb70")
+    p.add_argument("--dataset", help="dataset plugin name (see `mata-eval list`), e.g. dtb70; default for a "
+                                     "mata-eval run folder: its own")
     p.add_argument("--root", help="dataset root folder (the plugin's `root` parameter)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="another dataset parameter (repeatable; KEY=null: its default); for a run folder without "

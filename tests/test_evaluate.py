@@ -310,6 +310,12 @@ def test_eval_of_a_run_folder_takes_the_runs_dataset_parameters(tmp_path, monkey
     assert "manifest.json, with --set n_frames=30" in capsys.readouterr().out
     assert cli.main(["eval", str(d), "--dataset", "synthetic", "--set", "width=null", "--no-save"]) == 0
     assert calls[-1] == {"n_frames": 60}   # (None was passed on: refused where the default is not None)
+    capsys.readouterr()
+    assert cli.main(["eval", str(d), "--no-save"]) == 0   # its dataset too (QA pass 16b: --dataset was required)
+    assert calls[-1] == {"n_frames": 60, "width": 320}
+    assert f"dataset synthetic, as {d / 'manifest.json'} names it" in capsys.readouterr().out
+    assert cli.main(["eval", str(tmp_path), "--no-save"]) == 2
+    assert "is not a mata-eval run folder (no manifest.json naming its dataset): give --dataset" in capsys.readouterr().err
     assert cli.main(["eval", str(d), "--dataset", "dtb70", "--root", "/x", "--no-save"]) == 0
     assert calls[-1] == {}
 

@@ -14,14 +14,19 @@ from ..run import results
 PATH_PARAMS = ("root", "annotations")
 
 
+def manifest_or_nothing(folder: str | Path) -> dict[str, Any]:
+    """A folder's manifest.json, or an empty mapping (none, unreadable)."""
+    try:
+        return results.read_manifest(Path(folder)) or {}
+    except (OSError, ValueError):
+        return {}
+
+
 def run_manifest(folder: str | Path, dataset: str) -> dict[str, Any]:
     """A mata-eval run folder's manifest when its dataset is the plugin ``dataset`` (its
     ``config`` the run's resolved configuration); empty otherwise (another layout, another
     dataset, no manifest)."""
-    try:
-        manifest = results.read_manifest(Path(folder)) or {}
-    except (OSError, ValueError):
-        return {}
+    manifest = manifest_or_nothing(folder)
     ds = (manifest.get("config") or {}).get("dataset")
     return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
 
