@@ -1144,7 +1144,10 @@ def main(argv: list[str] | None = None) -> int:
               "rerun the same command to resume", file=sys.stderr)
         return exc.exit_status
     except KeyboardInterrupt:
-        print("interrupted: finished sequences are saved; rerun the same command to resume", file=sys.stderr)
+        what = {"run": "finished sequences are saved; rerun the same command to resume",
+                "profile": "no profile written", "export": "an earlier export there is kept, nothing new written",
+                }.get(args.command, "stopped before the end")
+        print(f"interrupted: {what}", file=sys.stderr)
         return 130
     except (UserError, OSError) as exc:  # a mistake to fix, or a file that cannot be read or written
         if args.debug:

@@ -140,3 +140,20 @@ def test_a_hand_edited_scores_file_is_named(tmp_path):
         (tmp_path / "scores.json").write_text(json.dumps({**good, **change}))
         with pytest.raises(ValueError, match=re.escape(words)):
             load_scores(tmp_path)
+
+
+def test_an_interrupt_says_what_the_command_kept(monkeypatch, capsys):
+    """QA pass 16b: Ctrl-C in `export` or `profile` said "finished sequences are saved; rerun the
+    same command to resume", which neither has."""
+    from mata_eval import cli
+
+    def stopped(args):
+        raise KeyboardInterrupt
+
+    for command, argv, words in (("profile", ["x.yaml", "--out", "p.json"], "no profile written"),
+                                 ("export", ["nanotrack", "--random-weights", "--out", "x"],
+                                  "an earlier export there is kept"),
+                                 ("run", ["x.yaml"], "finished sequences are saved; rerun the same command")):
+        monkeypatch.setattr(cli, f"cmd_{command}", stopped)
+        assert cli.main([command, *argv]) == 130
+        assert f"interrupted: {words}" in capsys.readouterr().err

@@ -368,4 +368,4 @@ def test_profile_checks_what_validate_and_run_check_first(tmp_path, capsys, monk
     assert main(["profile", str(path), "--run", "broken", "--out", str(tmp_path / "p.json"), "--frames", "2"]) == 2
     captured = capsys.readouterr()
     assert "skipping" not in captured.out + captured.err and "no run left" not in captured.err
-    assert "error: tracker qa_prof_broken:Broken (the run): TensorRT is not installed" in captured.err
+    assert "error: tracker qa_prof_broken:Broken (run broken): TensorRT is not installed" in captured.err   # (QA pass 16b: "(the run)")

@@ -234,7 +234,7 @@ def test_a_sequence_name_too_long_for_its_files_is_refused_before_the_run(tmp_pa
     for command in ("validate", "run"):
         assert main([command, str(p)]) == 2
         err = capsys.readouterr().err
-        assert ("dataset long_names (the run): 1 of 2 sequences cannot name their result files: sequence name "
+        assert ("dataset long_names (run exp): 1 of 2 sequences cannot name their result files: sequence name "
                 f"'{'s' * 40}'... is too long for its result files (256 bytes") in err
     assert not (tmp_path / "out").exists()
 

@@ -153,8 +153,8 @@ def _unknown_sequences(specs: Iterable[RunSpec], sequences: Iterable[str], flag:
 
 
 def _runs_text(names: tuple[str, ...], n_all: int) -> str:
-    if len(names) == n_all:
-        return "all runs" if n_all > 1 else "the run"
+    if len(names) == n_all and n_all > 1:
+        return "all runs"
     shown = ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
     return f"run{'s' if len(names) > 1 else ''} {shown}"
 
