@@ -63,7 +63,7 @@ def render(table: dict) -> str:
     for p in protocols:
         head += [f"{p} \\|dSR\\|", f"{p} \\|dNT2F\\|", f"{p} Hz"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    diffs: dict = defaultdict(list)
+    diffs: dict = defaultdict(dict)   # protocol -> {(tracker, mata): (|dSR|, |dNT2F|)}
     spreads = []
     timing_rows = []
     for (tracker, mata), cell in table.items():
@@ -86,7 +86,7 @@ def render(table: dict) -> str:
                 continue
             p_sr, p_nt2f, p_hz, p_t = cell[p][0]
             d = (abs(p_sr - m_sr), abs(p_nt2f - m_nt2f))
-            diffs[p].append(d)
+            diffs[p][(tracker, mata)] = d
             row += [f"{100 * d[0]:.1f}", f"{100 * d[1]:.1f}", f"{p_hz:.1f}"]
             timing_rows.append((tracker, mata, p, p_hz, p_t["age"], p_t["ego_ms"]))
         lines.append("| " + " | ".join(row) + " |")
@@ -94,14 +94,20 @@ def render(table: dict) -> str:
     if spreads:
         out.append(f"- live noise floor (mean abs. deviation of one repetition from the mean): "
                    f"SR {100 * np.mean([s[0] for s in spreads]):.1f}, NT2F {100 * np.mean([s[1] for s in spreads]):.1f} points")
-    ltp = {k: np.mean([d[k] for d in diffs["ltp"]]) for k in (0, 1)} if diffs.get("ltp") else None
+    mean = lambda ds: [float(np.mean([d[k] for d in ds])) for k in (0, 1)]  # noqa: E731
     for p in protocols:
         if not diffs.get(p):
             continue
-        m = [np.mean([d[k] for d in diffs[p]]) for k in (0, 1)]
-        ratio = "" if ltp is None or p == "ltp" else (
-            f" (LTP / {p}: SR {ltp[0] / m[0]:.1f}x, NT2F {ltp[1] / m[1]:.1f}x)" if min(m) > 0 else "")
-        out.append(f"- mean |dSR| {p}: {100 * m[0]:.1f}, mean |dNT2F|: {100 * m[1]:.1f} points{ratio}")
+        m = mean(diffs[p].values())
+        # the ratio over the rows both protocols have (QA pass 16b: means of different rows were divided)
+        common = sorted(set(diffs[p]) & set(diffs.get("ltp", {})))
+        ratio = ""
+        if p != "ltp" and common and min(p_c := mean([diffs[p][k] for k in common])) > 0:
+            ltp_c = mean([diffs["ltp"][k] for k in common])
+            ratio = (f" (LTP / {p} over the {len(common)} row(s) both have: SR {ltp_c[0] / p_c[0]:.1f}x, "
+                     f"NT2F {ltp_c[1] / p_c[1]:.1f}x)")
+        out.append(f"- mean |dSR| {p}: {100 * m[0]:.1f}, mean |dNT2F|: {100 * m[1]:.1f} points over "
+                   f"{len(diffs[p])} row(s){ratio}")
     out += ["", "| VOT | MATA | protocol | tracker Hz | mean output age (frames) | ego-motion ms/call |",
             "|---|---|---|---|---|---|"]
     out += [f"| {t} | {m} | {p} | {hz:.1f} | {age:.2f} | {ego:.1f} |" for t, m, p, hz, age, ego in timing_rows]
@@ -132,6 +138,8 @@ def write_self_profiles(exp_path: str, out_dir: str) -> None:
                         if math.isfinite(ms) and int(row["frame"]) > 0:  # not the initialisation
                             factor = scale.get(block, 1.0) if isinstance(scale, dict) else scale
                             pooled[tracker][block].append(ms * factor / 1e3)
+    for tracker in sorted({spec.name.split("-", 2)[0] for spec in exp.runs} - set(pooled)):
+        print(f"{tracker}: no self profile (no finished MATA live run of it in {exp_path})")
     for tracker, samples in pooled.items():
         machine = {"measured_on": "the live runs of " + exp_path, "how": "every call's work time x time_scale"}
         path = write_profile(profile_from_samples(samples, machine), Path(out_dir) / f"live-{tracker}-self.json")
