@@ -157,3 +157,33 @@ def test_an_interrupt_says_what_the_command_kept(monkeypatch, capsys):
         monkeypatch.setattr(cli, f"cmd_{command}", stopped)
         assert cli.main([command, *argv]) == 130
         assert f"interrupted: {words}" in capsys.readouterr().err
+
+
+def test_random_weights_are_warned_of_also_in_an_export(tmp_path):
+    """QA pass 16b: the graphs of `mata-eval export --random-weights` loaded and scored like real
+    ones without a word (export.json says random_weights_seed); `random_weights: true` too."""
+    import json
+    from types import SimpleNamespace
+
+    from mata_eval.run.preflight import random_weights
+
+    export = tmp_path / "models" / "mixformerv2_s"
+    export.mkdir(parents=True)
+    (export / "export.json").write_text(json.dumps({"format": "mata-eval export", "random_weights_seed": 5}))
+    real = tmp_path / "models" / "real"
+    real.mkdir()
+    (real / "export.json").write_text(json.dumps({"format": "mata-eval export", "random_weights_seed": None}))
+
+    class Tracker:
+        @staticmethod
+        def model_files(params):
+            return {"search": params.onnx / "search.onnx"} if params.onnx else {}
+
+    spec = lambda run, **params: SimpleNamespace(   # noqa: E731
+        name=run, tracker=SimpleNamespace(name="mixformerv2", cls=Tracker,
+                                          params=SimpleNamespace(**{"random_weights": False, "onnx": None, **params})))
+    lines = random_weights([spec("a", onnx=export), spec("b", onnx=real), spec("c", random_weights=True), spec("d")])
+    assert lines == [f"tracker mixformerv2 (run a) reads {export}, an export of random weights (seed 5): its scores "
+                     "measure timing and plumbing, not tracking",
+                     "tracker mixformerv2 (run c): random_weights: true, so its scores measure timing and plumbing, "
+                     "not tracking"]

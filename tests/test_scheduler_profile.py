@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from mata_eval.run.config import load_experiment
 from mata_eval.run.scheduler import run_sequence
 from mata_eval.run.timing_profile import (BlockProfile, ProfileError, profile_from_samples, read_profile,
                                       write_profile)
@@ -161,6 +162,16 @@ def test_a_profile_measured_with_another_tracker_is_named(tmp_path, monkeypatch,
                    .replace(str(tmp_path / "out"), str(tmp_path / "out2")))   # (out: results of the profile's rate)
     assert main(["validate", str(exp)]) == 0
     assert "warning" not in capsys.readouterr().out
+    # the same tracker with other parameters (QA pass 16b: a profile of another backend, unsaid)
+    exp.write_text(exp.read_text().replace("tracker_hz: 10", "tracker_hz: profile"))
+    kcf = load_experiment(exp).runs[0].resolved["tracker"]
+    first = sorted(k for k in kcf if k != "name")[0]
+    for record, words in ((kcf, None), ({**kcf, first: "other"}, f"measured with other tracker parameters "
+                                                                  f"({first}: 'other' then, {kcf[first]!r} now)")):
+        write_profile(profile_from_samples({"tracker": [0.1, 0.1]}, {"run": {"tracker": record}}), profile)
+        assert main(["validate", str(exp)]) == 0
+        out = capsys.readouterr().out
+        assert (words in out) if words else "warning" not in out
 
 
 def test_values_derived_from_the_samples_must_agree_with_them(tmp_path):

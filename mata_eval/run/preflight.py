@@ -188,10 +188,41 @@ def plan(exp: Experiment, only: Iterable[str] | None = None, sequences: Iterable
             warned += getattr(block.create(), "warnings", list)()
         except Exception:   # (a dataset that cannot be read is a problem above)
             pass
+    warned += random_weights(specs)
     return Plan(tuple(r for r in specs if r.name not in skipped),
                 tuple((by_name[n], p) for n, p in skipped.items()),
                 tuple(f"{p.block} ({_runs_text(p.runs, len(specs))}): {p.message}" for p in stopping),
                 tuple(p.error for p in stopping if p.error is not None), tuple(dict.fromkeys(warned)))
+
+
+def random_weights(specs: Iterable[RunSpec]) -> list[str]:
+    """A line per tracker of ``specs`` that runs random weights: ``random_weights: true``, or the
+    graphs of a ``mata-eval export --random-weights`` (its export.json says so; QA pass 16b: such
+    an export ran and scored like a real one without a word). Their scores measure timing and
+    plumbing, not tracking."""
+    from pathlib import Path
+
+    lines = []
+    for spec in specs:
+        params, files = spec.tracker.params, getattr(spec.tracker.cls, "model_files", None)
+        if getattr(params, "random_weights", False):
+            lines.append(f"tracker {spec.tracker.name} (run {spec.name}): random_weights: true, so its scores "
+                         "measure timing and plumbing, not tracking")
+            continue
+        try:
+            folders = {Path(p).parent for p in (files(params) if files is not None else {}).values()}
+        except (OSError, ValueError):   # (a missing file is the preflight's problem above)
+            continue
+        for folder in sorted(folders):
+            try:
+                doc = json.loads((folder / "export.json").read_text())
+            except (OSError, ValueError):
+                continue
+            if isinstance(doc, dict) and doc.get("random_weights_seed") is not None:
+                lines.append(f"tracker {spec.tracker.name} (run {spec.name}) reads {folder}, an export of random "
+                             f"weights (seed {doc['random_weights_seed']}): its scores measure timing and plumbing, "
+                             "not tracking")
+    return lines
 
 
 def _datasets(specs: Iterable[RunSpec]) -> list[PluginBlock]:

@@ -324,7 +324,8 @@ def write_result(out: Path, r: SequenceResult) -> SequenceOutcome:
 
 def profile_warnings(spec: RunSpec) -> list[str]:
     """A line per block whose rate or latency the run draws from a timing profile measured with
-    another plugin (``machine.run`` of the profile: ``mata-eval profile`` records the blocks)."""
+    another plugin, or the same one with other parameters (another backend, model file, ...;
+    ``machine.run`` of the profile: ``mata-eval profile`` records the resolved blocks)."""
     path = getattr(spec.protocol.params, "latency_profile", None)
     if not path:
         return []
@@ -335,10 +336,15 @@ def profile_warnings(spec: RunSpec) -> list[str]:
     for key in ("tracker", "egomotion", "estimator"):
         uses = "profile" in (getattr(spec.protocol.params, f"{key}_hz", None),
                              getattr(spec.protocol.params, f"{key}_latency", None))
-        block, was = getattr(spec, key), (measured.get(key) or {}).get("name")
-        if uses and block is not None and was and was != block.name:
-            out.append(f"the {key} rate/latency comes from {path}, measured with {key} {was}, not this run's "
-                       f"{block.name}: measure one with this run's blocks (mata-eval profile)")
+        block, was = getattr(spec, key), measured.get(key)
+        if not (uses and block is not None and isinstance(was, dict) and was.get("name")):
+            continue
+        if was["name"] != block.name:
+            out.append(f"the {key} rate/latency comes from {path}, measured with {key} {was['name']}, not this "
+                       f"run's {block.name}: measure one with this run's blocks (mata-eval profile)")
+        elif change := config_change(was, spec.resolved[key]):   # (QA pass 16b: a tensorrt profile, unsaid)
+            out.append(f"the {key} rate/latency comes from {path}, measured with other {key} parameters "
+                       f"({change}): measure one with this run's blocks (mata-eval profile)")
     return out
 
 
