@@ -98,7 +98,7 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
     naming those that exist); ``root``: its folder; more of its parameters as keywords
     (``sequences=[...]``, ``fps=30``; None: the default); ``profile``: the metric profile (``default``,
     ``pysot-toolkit``, ``got10k``, ...). As ``mata-eval eval``: without ``root``, a mata-eval
-    run folder of this dataset (the first one given) is scored on the run's own dataset
+    run folder of this dataset (the first one given of it) is scored on the run's own dataset
     parameters, the keywords on top, and each run folder with its run's occlusion augmentation."""
     import warnings
 
@@ -116,7 +116,7 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
     manifests = [run_manifest(f, dataset) for f in folders]
     values = {k: v for k, v in dataset_params.items() if v is not None}   # None: the default
     values.update({} if root is None else {"root": str(root)})
-    first = manifests[0] if folders and root is None else {}
+    first = next((m for m in manifests if m), {}) if root is None else {}   # the first run folder of this dataset
     if first:
         values = run_dataset_values(first, values)
     with in_run_cwd(first or None):   # (the run's relative paths; frame 0 for its occlusion augmentation)

@@ -310,7 +310,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
     try:
         manifests = {d: run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
-        first = manifests[args.results_dirs[0]]
+        # the first run folder of this dataset (QA pass 16a: a first folder of another dataset hid it)
+        source = next((d for d in args.results_dirs if manifests[d]), args.results_dirs[0])
+        first = manifests[source]
         if args.root is None and first:
             # a run folder of this dataset: the dataset as that run loaded it, not the default
             # (for synthetic: a 1.1 GB suite rendered, then refused on its frame count), its
@@ -319,7 +321,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
             given = ", with --set " + " ".join(args.set) if sets else ""
             sets = run_dataset_values(first, sets)
-            print(f"dataset {args.dataset} with the parameters of {Path(args.results_dirs[0]) / 'manifest.json'}{given}")
+            print(f"dataset {args.dataset} with the parameters of {Path(source) / 'manifest.json'}{given}")
             run_cwd = lambda: in_run_cwd(first)  # noqa: E731
             values_cwd = Path(first.get("cwd") or ".")
         with run_cwd():

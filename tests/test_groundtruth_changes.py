@@ -388,6 +388,14 @@ def test_eval_of_two_runs_writes_only_the_scores_of_the_run_whose_dataset_it_loa
     assert f"wrote {one / 'scores.json'}" in out and f"{run}: scores.json not written there" in out
     assert not (run / "scores.json").exists()
     assert json.loads((one / "scores.json").read_text())["meta"]["dataset"] == "folder"
+    # a first folder that is no run folder of the dataset (pysot layout) does not hide the run's
+    # parameters (QA pass 16a: "missing required parameter(s): root"; the other order worked)
+    foreign = workdir / "pysot" / "Stay"
+    foreign.mkdir(parents=True)
+    for name in ("a", "b"):
+        (foreign / f"{name}.txt").write_text((run / f"{name}.txt").read_text())
+    assert main(["eval", str(foreign), str(run), "--dataset", "folder", "--no-save"]) == 0
+    assert f"dataset folder with the parameters of {run / 'manifest.json'}" in capsys.readouterr().out
 
 
 def test_report_follows_the_sequences_the_experiment_lists_now(workdir, capsys):
