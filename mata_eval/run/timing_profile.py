@@ -20,7 +20,8 @@ File format (JSON, or YAML when the file name ends in ``.yaml`` / ``.yml``)::
 Block names are the scheduler's (``tracker``, ``egomotion``, ``estimator``); other names are
 kept but unused. A block needs ``samples_s`` or ``histogram`` (or both; draws then use the
 samples, and the histogram must count them). To change a profile, edit its samples (e.g. scale
-them all) and delete the derived values, or measure with ``mata-eval profile --time-scale``. Writers: build the profile with :func:`profile_from_samples` and save it with
+them all) and delete the derived values, or measure with ``mata-eval profile --time-scale``.
+Writers: build the profile with :func:`profile_from_samples` and save it with
 :func:`write_profile`.
 """
 
