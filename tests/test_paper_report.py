@@ -561,3 +561,6 @@ def test_results_of_several_package_versions_are_noted_and_every_setup_is_in_the
         "a: its results were made with different package versions (numpy 1.26.4, 2.1.0)"]
     meta = run_meta(runs)
     assert "git commit: 0ld, abc123" in meta and "machine: cpu=laptop; cpu=test" in meta
+    # a setup whose results are no longer scored (a sequence removed from the list) is not listed
+    evaluate_run(d, [Sequence("s2", np.tile(GT, (N, 1)))])
+    assert "git commit: abc123" in run_meta(load_runs([d]))

@@ -489,7 +489,7 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
 
 def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
     """Provenance lines for the summary: experiments, commits and machines of the runs (of
-    every setup that made their results: a resumed run may have several)."""
+    every setup that made their scored results: a resumed run may have several)."""
     from ..run import results
 
     exps, commits, machines = [], [], []
@@ -498,8 +498,9 @@ def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
         if not m:
             continue
         made = [(exps, m.get("experiment"))]
-        setups, made_by = results.setup_record(m)
-        for setup in [setups[i] for i in sorted(set(made_by.values()))] or [results.setup_identity(m)]:
+        setups, made_by = results.setup_record(m)   # the setups that made the scored results
+        used = sorted({made_by[n] for n in r.scores.sequences if n in made_by})
+        for setup in [setups[i] for i in used] or [results.setup_identity(m)]:
             made += [(commits, setup.get("git_commit")), (machines, _machine_line(setup.get("machine")))]
         for lst, v in made:
             if v and v not in lst:
