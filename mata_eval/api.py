@@ -106,7 +106,7 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
     from .core.registry import load_registry
     from .run.results import in_run_cwd
     from .score.evaluate import evaluate_results
-    from .score.run_dataset import as_the_run_saw_them, run_dataset_values, run_manifest
+    from .score.run_dataset import as_the_run_saw_them, defaults_for_none, run_dataset_values, run_manifest
 
     try:
         cls = load_registry().get("dataset", dataset).cls
@@ -114,13 +114,12 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
         raise ValueError(exc.args[0]) from None
     folders = [Path(folder)] if isinstance(folder, (str, Path)) else [Path(f) for f in folder]
     manifests = [run_manifest(f, dataset) for f in folders]
-    values = {k: v for k, v in dataset_params.items() if v is not None}   # None: the default
-    values.update({} if root is None else {"root": str(root)})
+    values = {**dataset_params, **({} if root is None else {"root": str(root)})}
     first = next((m for m in manifests if m), {}) if root is None else {}   # the first run folder of this dataset
     if first:
         values = run_dataset_values(first, values)
     with in_run_cwd(first or None):   # (the run's relative paths; frame 0 for its occlusion augmentation)
-        sequences = cls(build_params(cls.Params, values, ("dataset",))).sequences()
+        sequences = cls(build_params(cls.Params, defaults_for_none(cls.Params, values), ("dataset",))).sequences()
         seen = [as_the_run_saw_them(sequences, m.get("config", {}), lambda line: warnings.warn(f"{f}: {line}", stacklevel=3))
                 for f, m in zip(folders, manifests)]
     scores = [evaluate_results(f, s, profile=profile, layout=layout, dataset=dataset) for f, s in zip(folders, seen)]

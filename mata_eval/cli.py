@@ -229,8 +229,10 @@ def _dataset_params(name: str, root: str | None, extra: Mapping[str, Any] | None
     from .core.params import build_params
     from .core.registry import load_registry
 
+    from .score.run_dataset import defaults_for_none
+
     cls = load_registry().get("dataset", name).cls
-    values = {k: v for k, v in (extra or {}).items() if v is not None}
+    values = defaults_for_none(cls.Params, extra or {})
     if root is not None:
         values["root"] = root
     return cls, build_params(cls.Params, values)
@@ -240,6 +242,12 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     """Sequences of the dataset plugin ``name`` built with ``{"root": root, **extra}``."""
     cls, params = _dataset_params(name, root, extra)
     return list(cls(params).sequences())
+
+
+def _dataset_named(manifest: dict[str, Any]) -> str | None:
+    """The dataset plugin a run folder's manifest names, or None."""
+    ds = (manifest.get("config") or {}).get("dataset") if isinstance(manifest.get("config"), dict) else None
+    return ds.get("name") if isinstance(ds, dict) and isinstance(ds.get("name"), str) else None
 
 
 def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
@@ -297,14 +305,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
-    if args.dataset is None:   # a mata-eval run folder names its own (QA pass 16b: --dataset was required)
-        config = (manifest_or_nothing(args.results_dirs[0]).get("config") or {})
-        args.dataset = (config.get("dataset") or {}).get("name") if isinstance(config.get("dataset"), dict) else None
-        if not isinstance(args.dataset, str):
-            print(f"error: {args.results_dirs[0]} is not a mata-eval run folder (no manifest.json naming its "
-                  "dataset): give --dataset NAME (and --root PATH)", file=sys.stderr)
+    if args.dataset is None:   # the first run folder names it (QA pass 16b: --dataset was required)
+        named = {d: _dataset_named(manifest_or_nothing(d)) for d in args.results_dirs}
+        source = next((d for d, name in named.items() if name), None)
+        if source is None:
+            print(f"error: {'no folder given is' if len(named) > 1 else f'{args.results_dirs[0]} is not'} a mata-eval "
+                  "run folder with a readable manifest.json naming its dataset: give --dataset NAME (and --root PATH)",
+                  file=sys.stderr)
             return 2
-        print(f"dataset {args.dataset}, as {Path(args.results_dirs[0]) / 'manifest.json'} names it")
+        args.dataset = named[source]
+        print(f"dataset {args.dataset}, as {Path(source) / 'manifest.json'} names it")
     all_scores = []
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
@@ -383,12 +393,15 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
+
     """After a table: the sequences each scored run has no results for (an interrupted run, a
     results folder short of the dataset; its row averages only the others), its results of no
     sequence of the ``dataset`` (a sequence removed since), the frames it skipped as unreadable
     (``on_bad_frame: skip``: not scored), the sequences run on other ground truth than they are
     scored on, the package versions that differ among its results, and rows scored under
     different metric profiles (their numbers do not compare)."""
+    from .score.evaluate import FREQUENCY_RULE
+
     profiles: dict[str, list[str]] = {}
     for scores in runs:
         profiles.setdefault(scores.profile, []).append(scores.name)
@@ -444,6 +457,9 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
                   f"tracker started from another box, or occluders were placed from other boxes): "
                   f"{', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
                   + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
+        if scores.frequencies and scores.meta.get("frequency_rule") != FREQUENCY_RULE:   # a scores.json file given
+            print(f"{scores.path}: its block rates (Hz) count frame 0, the initialisation, as an older mata-eval did "
+                  f"(a few tenths of a Hz high): score its results again (mata-eval eval) for today's rates")
         mixed = scores.meta.get("mixed_versions") or {}
         if mixed:
             print(f"the results{where} were made with different package versions (a run resumed after an upgrade): "
@@ -762,8 +778,10 @@ def cmd_profile(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     out = Path(args.out)   # (QA pass: a folder failed at the end, naming a temporary file)
-    if out.is_dir() or out.suffix.lower() not in (".json", ".yaml", ".yml"):
-        what = "is a folder" if out.is_dir() else "has neither .json nor .yaml at its end"
+    above = next(p for p in out.absolute().parents if p.exists())   # (its folders are made at the end)
+    if out.is_dir() or out.suffix.lower() not in (".json", ".yaml", ".yml") or not above.is_dir():
+        what = ("is a folder" if out.is_dir() else f"is under {above}, a file" if not above.is_dir()
+                else "has neither .json nor .yaml at its end")
         print(f"error: --out {args.out} {what}: give the timing profile file to write (.json, or .yaml)",
               file=sys.stderr)
         return 2
@@ -791,10 +809,10 @@ def cmd_profile(args: argparse.Namespace) -> int:
         spec = matches[0]
     if args.threads:   # before the preflight, which builds the blocks
         _set_threads(args.threads)
-        if getattr(spec.tracker.params, "threads", None) == 0:   # (ONNX Runtime does not read OMP_NUM_THREADS)
+        tracker = spec.tracker.params   # (ONNX Runtime does not read OMP_NUM_THREADS; torch does)
+        if getattr(tracker, "threads", None) == 0 and getattr(tracker, "backend", "onnxruntime") == "onnxruntime":
             print(f"note: --threads {args.threads} does not reach the tracker: its `threads: 0` leaves ONNX Runtime "
-                  f"and torch at their own setting (all cores); set `threads: {args.threads}` in its block to "
-                  f"profile it on {args.threads}")
+                  f"at all cores; set `threads: {args.threads}` in its block to profile it on {args.threads}")
     # what validate and run check first (QA pass: a wrong checkpoint or backend was a traceback here);
     # the run asked for is profiled or refused, also one marked optional (it would be "skipped")
     spec = dataclasses.replace(spec, optional=False)

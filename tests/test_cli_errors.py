@@ -183,6 +183,7 @@ def test_random_weights_are_warned_of_also_in_an_export(tmp_path):
         name=run, tracker=SimpleNamespace(name="mixformerv2", cls=Tracker,
                                           params=SimpleNamespace(**{"random_weights": False, "onnx": None, **params})))
     lines = random_weights([spec("a", onnx=export), spec("b", onnx=real), spec("c", random_weights=True), spec("d")])
+    # (run_experiment writes these lines into the run's manifest.json warnings too)
     assert lines == [f"tracker mixformerv2 (run a) reads {export}, an export of random weights (seed 5): its scores "
                      "measure timing and plumbing, not tracking",
                      "tracker mixformerv2 (run c): random_weights: true, so its scores measure timing and plumbing, "

@@ -309,13 +309,20 @@ def test_eval_of_a_run_folder_takes_the_runs_dataset_parameters(tmp_path, monkey
     assert calls[-1] == {"n_frames": 30, "width": 320}
     assert "manifest.json, with --set n_frames=30" in capsys.readouterr().out
     assert cli.main(["eval", str(d), "--dataset", "synthetic", "--set", "width=null", "--no-save"]) == 0
-    assert calls[-1] == {"n_frames": 60}   # (None was passed on: refused where the default is not None)
+    assert calls[-1] == {"n_frames": 60, "width": None}   # None: the default (the plugin's parameters drop it)
     capsys.readouterr()
     assert cli.main(["eval", str(d), "--no-save"]) == 0   # its dataset too (QA pass 16b: --dataset was required)
     assert calls[-1] == {"n_frames": 60, "width": 320}
     assert f"dataset synthetic, as {d / 'manifest.json'} names it" in capsys.readouterr().out
     assert cli.main(["eval", str(tmp_path), "--no-save"]) == 2
-    assert "is not a mata-eval run folder (no manifest.json naming its dataset): give --dataset" in capsys.readouterr().err
+    assert "is not a mata-eval run folder with a readable manifest.json naming its dataset: give --dataset" in \
+        capsys.readouterr().err
+    foreign = tmp_path / "pysot"   # a folder of another toolkit first: the first run folder names it (QA pass 16c)
+    foreign.mkdir()
+    for s in seqs:
+        (foreign / f"{s.name}.txt").write_text((d / f"{s.name}.txt").read_text())
+    assert cli.main(["eval", str(foreign), str(d), "--no-save"]) == 0
+    assert f"dataset synthetic, as {d / 'manifest.json'} names it" in capsys.readouterr().out
     assert cli.main(["eval", str(d), "--dataset", "dtb70", "--root", "/x", "--no-save"]) == 0
     assert calls[-1] == {}
 
@@ -342,6 +349,8 @@ def test_eval_of_an_occluded_run_folder_gives_back_the_runs_own_scores(tmp_path,
     monkeypatch.chdir(tmp_path / "out")
     api = me.evaluate(run, dataset="synthetic").to_dict()
     assert api["summary"] == own["summary"] and api["sequences"] == own["sequences"]
+    with pytest.raises(ValueError, match="unknown parameter 'n_framez'"):   # (QA pass 16c: None hid a typo)
+        me.evaluate(run, dataset="synthetic", n_framez=None)
     n_frames = me.evaluate(run, dataset="synthetic", n_frames=30)   # a keyword on top of the run's parameters
     assert set(n_frames.meta["unscorable"]) == set(own["sequences"]) and not n_frames.sequences   # 40 lines, 30 frames
 
@@ -359,7 +368,7 @@ def test_rescoring_an_occluded_run_without_its_frames_says_what_is_lost(capsys):
     assert "RUN: scored without the run's occlusion augmentation (no AOC group" in capsys.readouterr().out
 
 
-def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path):
+def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path, capsys):
     """A mata run folder writes no <seq>_time.txt, so a sequence named ``lap_time`` is a
     sequence (QA pass: its lap_time.txt was skipped as a pytracking timing file and the finished
     sequence counted as without results)."""
@@ -374,6 +383,9 @@ def test_a_run_folders_sequence_named_like_a_timing_file_is_scored(tmp_path):
     # a scores.json whose block rates counted the initialisation (an older mata-eval) is scored again
     older = dataclasses.replace(sc, meta={k: v for k, v in sc.meta.items() if k != "frequency_rule"})
     assert evaluate.stale_reason(older, d).startswith("its block rates were computed by an older rule")
+    # given as a file (no rescoring there), its table says so (QA pass 16c: shown as it was)
+    cli._print_incomplete([older])
+    assert f"{d}: its block rates (Hz) count frame 0, the initialisation" in capsys.readouterr().out
 
 
 def test_a_foreign_folder_whose_first_file_is_not_text_scores_the_others(tmp_path):
@@ -394,3 +406,12 @@ def test_a_sequences_list_in_another_order_is_the_same_dataset(tmp_path):
     so its scores.json is written (QA pass: the order made it "other dataset parameters")."""
     key = lambda names: cli._dataset_key({"name": "folder", "root": "data", "sequences": names}, tmp_path)
     assert key(["b", "a"]) == key(["a", "b"]) != key(["a"])
+
+
+def test_null_gives_a_parameters_default_and_a_misspelt_one_is_named(tmp_path):
+    """QA passes 16a-c: `--set fps=null` was refused ("expected float, got None") and
+    `--set fpz=null` accepted without a word."""
+    _, params = cli._dataset_params("folder", str(tmp_path), {"fps": None, "sequences": None})
+    assert params.fps == 30.0 and params.sequences is None
+    with pytest.raises(ValueError, match="unknown parameter 'fpz'"):
+        cli._dataset_params("folder", str(tmp_path), {"fpz": None})

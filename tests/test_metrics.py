@@ -347,14 +347,25 @@ def test_mmtracking_golden_numbers():
             assert round(agg.pr * 100, 3) == npr and round(agg.precision20 * 100, 3) == p20
 
 
-def test_the_first_start_is_left_out_of_both_rates():
-    """QA pass 16b: 40 frames at 30 fps, the tracker every third frame, its initialisation at
+def test_frame_0_the_initialisation_is_left_out_of_both_rates():
+    """QA passes 16b-c: 40 frames at 30 fps, the tracker every third frame, its initialisation at
     frame 0 taking 1090 ms (a model loaded on first use) and each call 45 ms, showed 10.5 (8.1)
-    Hz; the protocol ran it at 10 Hz and its calls go at 22.2 Hz."""
+    Hz; the protocol ran it at 10 Hz and its calls go at 22.2 Hz. vot_rt calls at frame 1 (its
+    grace), then every fourth frame: 9.2 Hz where the calls go at 7.5 Hz. A got10k time file
+    has no time at frame 0: its frame 1 is a call like the others."""
     ms = np.full(40, np.nan)
     ms[::3] = 45.0
     ms[0] = 1090.0
     f = M.block_frequencies({"tracker": ms}, 40, 30.0)["tracker"]
     assert f.scheduled_hz == pytest.approx(10.0) and f.wall_hz == pytest.approx(1000 / 45)
-    once = M.block_frequencies({"tracker": ms[:1]}, 1, 30.0)["tracker"]   # no interval: unknown
-    assert np.isnan(once.scheduled_hz) and np.isnan(once.wall_hz)
+    vot = np.full(40, np.nan)
+    vot[[0, 1, 5, 9, 13, 17, 21, 25, 29, 33, 37]] = 10.0
+    assert M.block_frequencies({"tracker": vot}, 40, 30.0)["tracker"].scheduled_hz == pytest.approx(7.5)
+    times = np.r_[1000.0, 50.0, np.full(80, 10.0)]             # pytracking: frame 0 timed
+    for first in (1000.0, np.nan):                            # got10k: untimed (0, read as NaN)
+        times[0] = first
+        g = M.block_frequencies({"tracker": times}, 82, 30.0)["tracker"]
+        assert g.wall_hz == pytest.approx(1000 * 81 / 850) and g.scheduled_hz == pytest.approx(30.0)
+    for n in (1, 2):                                           # no interval from frame 1 on: unknown rate
+        once = M.block_frequencies({"tracker": ms[:n]}, n, 30.0)["tracker"]
+        assert np.isnan(once.scheduled_hz)

@@ -469,6 +469,23 @@ def test_a_run_records_its_checkpoint_and_refuses_results_of_another(tmp_path, m
         run_experiment(load_experiment(exp_file), **quiet)
 
 
+def test_a_run_of_random_weights_says_so_in_its_manifest(tmp_path):
+    """QA pass 16c: the random-weights warning was printed, not kept with the run."""
+    import json
+
+    from mata_eval.run.config import load_experiment
+    from mata_eval.run.runner import run_experiment
+
+    _folder_dataset(tmp_path / "data", n=2)
+    exp_file = tmp_path / "exp.yaml"
+    exp_file.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: folder, root: {tmp_path / 'data'}}}\n"
+                        "tracker: {name: mixformerv2, threads: 1, random_weights: true}\n")
+    run_experiment(load_experiment(exp_file), jobs=1, progress=False, log=lambda s: None)
+    warnings = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())["warnings"]
+    assert warnings == ["tracker mixformerv2 (run exp): random_weights: true, so its scores measure timing and "
+                        "plumbing, not tracking"]
+
+
 def test_model_files_of_each_configuration(tmp_path, monkeypatch):
     from mata_eval_plugins.trackers.ostrack import OSTrack
 

@@ -52,6 +52,7 @@ class SleepTracker:
     class Params:
         sleep_s: float = param(0.02, "seconds per call")
         threads: int = param(1, "library threads (0 = all cores), as the ONNX trackers have")
+        backend: str = param("onnxruntime", "as the exported transformer trackers have")
 
     def __init__(self, params):
         self.params = params
@@ -312,7 +313,8 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     # QA pass 14: a bad --out failed after the timing, naming a temporary file; profile of a file
     # whose eop reads the profile it is to write; --sequence named as --sequences
     for out, words in ((tmp_path, f"--out {tmp_path} is a folder: give the timing profile file to write"),
-                       (tmp_path / "p.txt", "p.txt has neither .json nor .yaml at its end")):   # (QA pass 16b: JSON in .txt)
+                       (tmp_path / "p.txt", "p.txt has neither .json nor .yaml at its end"),   # (QA pass 16b: JSON in .txt)
+                       (path / "sub" / "p.json", f"is under {path}, a file")):   # (16c: said after the timing)
         assert main(["profile", str(path), "--out", str(out)]) == 2
         assert words in capsys.readouterr().err
     # its folder is made (QA pass 16b: docs/jetson.md's `--out profiles/orin-30W.json` failed on a fresh checkout)
@@ -328,6 +330,10 @@ def test_time_scale_gives_the_profile_of_a_slower_device(tmp_path, capsys, monke
     assert main(["profile", str(path), "--out", str(tmp_path / "p.json"), "--frames", "3", "--warmup", "1",
                  "--threads", "1"]) == 0
     assert "note: --threads 1 does not reach the tracker: its `threads: 0`" in capsys.readouterr().out
+    path.write_text(path.read_text().replace("threads: 0}", "threads: 0, backend: torch}"))   # torch reads it
+    assert main(["profile", str(path), "--out", str(tmp_path / "p.json"), "--frames", "3", "--warmup", "1",
+                 "--threads", "1"]) == 0
+    assert "does not reach" not in capsys.readouterr().out
     args = parser.parse_args(["profile", str(path), "--out", str(tmp_path / "q.json"), "--sequence", "nope"])
     assert args.func(args) == 2
     assert "unknown sequence name(s) nope (--sequence); the sequences are: " in capsys.readouterr().err

@@ -166,8 +166,12 @@ def test_a_profile_measured_with_another_tracker_is_named(tmp_path, monkeypatch,
     exp.write_text(exp.read_text().replace("tracker_hz: 10", "tracker_hz: profile"))
     kcf = load_experiment(exp).runs[0].resolved["tracker"]
     first = sorted(k for k in kcf if k != "name")[0]
-    for record, words in ((kcf, None), ({**kcf, first: "other"}, f"measured with other tracker parameters "
-                                                                  f"({first}: 'other' then, {kcf[first]!r} now)")):
+    # not a parameter one side leaves unset (added since, a default resolved elsewhere) nor a path
+    # given another way (QA pass 16c: the shipped profiles warned 24 times of those)
+    unset = ({**kcf, "added_since": 3, first: None}, None)
+    for record, words in ((kcf, None), unset, ({**kcf, first: "/models/x.onnx"}, None),
+                          ({**kcf, first: "other"}, f"measured with other tracker parameters "
+                                                    f"({first}: 'other' then, {kcf[first]!r} now)")):
         write_profile(profile_from_samples({"tracker": [0.1, 0.1]}, {"run": {"tracker": record}}), profile)
         assert main(["validate", str(exp)]) == 0
         out = capsys.readouterr().out
@@ -195,6 +199,16 @@ def test_values_derived_from_the_samples_must_agree_with_them(tmp_path):
     alone = {k: v for k, v in doc["blocks"]["tracker"].items() if k == "samples_s"}   # samples alone: fine
     (tmp_path / "alone.json").write_text(json.dumps({**doc, "blocks": {"tracker": alone}}))
     assert read_profile(tmp_path / "alone.json").blocks["tracker"].rate_hz == pytest.approx(1 / 0.032)
+    # the histogram alone (its samples deleted, as the message above allows) is read: its values
+    # were written from the samples it counts, so they agree to a bin (QA pass 16c: refused); a
+    # value set to null is no value
+    hist = {k: v for k, v in doc["blocks"]["tracker"].items() if k != "samples_s"}
+    for entry in (hist, {**hist, "rate_hz": None}):
+        (tmp_path / "hist_only.json").write_text(json.dumps({**doc, "blocks": {"tracker": entry}}))
+        assert read_profile(tmp_path / "hist_only.json").blocks["tracker"].samples_s is None
+    (tmp_path / "hist_only.json").write_text(json.dumps({**doc, "blocks": {"tracker": {**hist, "rate_hz": 10.0}}}))
+    with pytest.raises(ProfileError, match=r"rate_hz' is 10.0, but its histogram gives 31.2"):
+        read_profile(tmp_path / "hist_only.json")
 
 
 def test_a_profile_in_milliseconds_is_warned_of(tmp_path):

@@ -38,7 +38,7 @@ LEGEND = (
              "(IoU 0), over the sequence length; 100 = never lost (paper eq. nt2f)"),
     ("<block> Hz", "e.g. tracker Hz 10.0 (22.5): the protocol ran the block 10 times per second of video "
                    "(camera clock); in parentheses, 1 / its mean wall time per call on this machine (both "
-                   "after its first call, the tracker's initialisation)"),
+                   "from frame 1 on: frame 0 initialises the blocks); - : fewer than two calls, no rate"),
     ("Excl. frames", "frames left out of every metric because their ground truth is empty or missing "
                      "(target fully occluded or out of view, or not annotated)"),
     ("Failed", "sequences that failed to run (<run>/<sequence>.failed.json says why) or whose results cannot be "

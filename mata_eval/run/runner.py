@@ -26,7 +26,7 @@ from ..core.sequence import Sequence
 from . import results
 from .config import Experiment, RunSpec, config_change, without_selection
 from .executors import Executor, LocalExecutor
-from .preflight import unknown_sequences_line
+from .preflight import random_weights, unknown_sequences_line
 from .scheduler import RateWarning
 from .stop import stop_on_signals
 from .tasks import SequenceResult, Task, as_run_sees_it, base_sequences, make_tasks, plan
@@ -342,10 +342,24 @@ def profile_warnings(spec: RunSpec) -> list[str]:
         if was["name"] != block.name:
             out.append(f"the {key} rate/latency comes from {path}, measured with {key} {was['name']}, not this "
                        f"run's {block.name}: measure one with this run's blocks (mata-eval profile)")
-        elif change := config_change(was, spec.resolved[key]):   # (QA pass 16b: a tensorrt profile, unsaid)
+        elif change := config_change(*_set_in_both(was, spec.resolved[key])):   # (QA pass 16b: tensorrt, unsaid)
             out.append(f"the {key} rate/latency comes from {path}, measured with other {key} parameters "
                        f"({change}): measure one with this run's blocks (mata-eval profile)")
     return out
+
+
+def _set_in_both(was: dict[str, Any], now: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The parameters of a profiled block and of the run's that both set, paths aside: one
+    absent or null on a side is a parameter added since, or a default resolved elsewhere (the
+    shipped profiles warned 24 times of those), and a model file is named relative to another
+    folder, absolute, or found through an environment variable (the manifests record its
+    sha256)."""
+    def kept(k: str) -> bool:
+        a, b = was.get(k), now.get(k)
+        return a is not None and b is not None and not any(isinstance(v, str) and ("/" in v or "\\" in v) for v in (a, b))
+
+    keys = [k for k in was if k in now and kept(k)]
+    return {k: was[k] for k in keys}, {k: now[k] for k in keys}
 
 
 def protocol_warnings(spec: RunSpec) -> list[str]:
@@ -461,7 +475,8 @@ def _run_locked(exp: Experiment, specs: list[RunSpec], sequences: list[str] | No
         notes = protocol_warnings(spec)
         for message in notes:
             log(f"warning: {spec.name}: {message}")
-        out = prepare_run_dir(exp, spec, force, notes, sequences)
+        # (the preflight printed the random-weights line; the manifest keeps it with the others)
+        out = prepare_run_dir(exp, spec, force, notes + random_weights([spec]), sequences)
         for i, seq in enumerate(load_sequences(spec)):
             if sequences and seq.name not in sequences:
                 continue

@@ -213,21 +213,28 @@ def read_profile(path: str | Path) -> TimingProfile:
 
 def _check_derived(entry: Mapping[str, Any], block: BlockProfile, where: str) -> None:
     """Refuse a profile whose values written for people (``mean_s``, ``rate_hz``,
-    ``percentiles_s``) or whose histogram beside the samples say other than its samples, from
-    which every draw is made (QA pass: ``rate_hz`` edited from 30 to 10, the tracker still ran
-    at 30 Hz without a word)."""
-    redo = ("draws use samples_s (then the histogram): edit those, e.g. scale every sample, and delete or "
-            "update the values derived from them (mean_s, rate_hz, percentiles_s)")
-    derived = {"mean_s": block.mean_s, "rate_hz": block.rate_hz,
-               **{f"percentiles_s.{q}": v for q, v in block.percentiles_s().items()}}
-    given = {k: entry[k] for k in ("mean_s", "rate_hz") if k in entry}
-    if isinstance(entry.get("percentiles_s"), Mapping):
+    ``percentiles_s``) or whose histogram beside the samples say other than what every draw is
+    made from (QA pass: ``rate_hz`` edited from 30 to 10, the tracker still ran at 30 Hz without
+    a word): its samples, to rounding; a histogram alone, the mean and rate to half its widest
+    bin (they were written from the samples it counts, each within its bin; its percentiles,
+    interpolated within bins, may differ more and are not compared). A null value is no value."""
+    source = "samples" if block.samples_s is not None else "histogram"
+    redo = (f"draws use its {source}: edit those (e.g. scale every value), and delete or update the values "
+            "derived from them (mean_s, rate_hz, percentiles_s)")
+    tol = 0.0 if block.samples_s is not None else 0.5 * float(np.max(np.diff(block.hist_edges_s))) * (1 + 1e-9)
+    mean = block.mean_s
+    derived = {"mean_s": mean, **{f"percentiles_s.{q}": v for q, v in block.percentiles_s().items()}}
+    given = {k: entry[k] for k in ("mean_s", "rate_hz") if entry.get(k) is not None}
+    if isinstance(entry.get("percentiles_s"), Mapping) and not tol:
         given.update({f"percentiles_s.{q}": v for q, v in entry["percentiles_s"].items()
-                      if f"percentiles_s.{q}" in derived})
+                      if f"percentiles_s.{q}" in derived and v is not None})
     for key, value in given.items():
-        ok = isinstance(value, (int, float)) and math.isclose(float(value), derived[key], rel_tol=1e-6, abs_tol=1e-12)
-        if not ok:
-            raise ProfileError(f"{where}.{key}' is {value!r}, but its samples give {derived[key]:.6g}: {redo}")
+        number = isinstance(value, (int, float)) and not isinstance(value, bool) and (key != "rate_hz" or value > 0)
+        seconds = (1.0 / value if key == "rate_hz" else value) if number else math.nan
+        want = mean if key == "rate_hz" else derived[key]
+        if not math.isclose(seconds, want, rel_tol=1e-6, abs_tol=max(tol, 1e-12)):
+            gives = f"{1.0 / mean:.6g}" if key == "rate_hz" and mean > 0 else f"{want:.6g}"
+            raise ProfileError(f"{where}.{key}' is {value!r}, but its {source} give{'s' if tol else ''} {gives}: {redo}")
     if block.samples_s is not None and block.hist_edges_s is not None:
         counts, _ = np.histogram(block.samples_s, bins=block.hist_edges_s)
         if not np.array_equal(counts, block.hist_counts):

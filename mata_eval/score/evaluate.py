@@ -428,8 +428,8 @@ def evaluate_run(run_dir: Path, sequences: Iterable[Sequence], profile: str = "d
 
 
 #: how the block rates of a scores.json were computed (metrics.frequencies): an older mata-eval
-#: counted the first start, the tracker's initialisation (10.5 Hz for 10 Hz on 40 frames)
-FREQUENCY_RULE = "first start left out"
+#: counted frame 0, the initialisation (10.5 Hz for 10 Hz on 40 frames)
+FREQUENCY_RULE = "from frame 1"
 
 
 def stale_reason(scores: RunScores, run_dir: Path) -> str | None:

@@ -33,13 +33,23 @@ def run_manifest(folder: str | Path, dataset: str) -> dict[str, Any]:
 
 def run_dataset_values(manifest: Mapping[str, Any], given: Mapping[str, Any]) -> dict[str, Any]:
     """The run's dataset parameters (``manifest``: :func:`run_manifest`) with those the user
-    gave on top (``given``; ``None`` leaves a parameter out: its default): a ``--set`` changed
-    one of them and dropped the others (for the synthetic suite, a 1.1 GB default suite was
-    rendered and then refused on its frame count). The user's relative paths are made absolute,
-    as the run's are read from the folder it ran in (:func:`results.in_run_cwd`)."""
-    own = {k: v for k, v in manifest["config"]["dataset"].items() if k != "name"}
+    gave on top (``given``; ``None``: the default, :func:`defaults_for_none`): a ``--set``
+    changed one of them and dropped the others (for the synthetic suite, a 1.1 GB default suite
+    was rendered and then refused on its frame count). The user's relative paths are made
+    absolute, as the run's are read from the folder it ran in (:func:`results.in_run_cwd`)."""
+    own = {k: v for k, v in manifest["config"]["dataset"].items() if k != "name" and v is not None}
     mine = {k: str(Path(v).resolve()) if k in PATH_PARAMS and isinstance(v, str) else v for k, v in given.items()}
-    return {k: v for k, v in {**own, **mine}.items() if v is not None}
+    return {**own, **mine}
+
+
+def defaults_for_none(params_cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` without the parameters of ``params_cls`` given as None (``--set KEY=null``: its
+    default); an unknown name stays, so that building the parameters names it (QA pass 16c:
+    ``--set sequencez=null`` was accepted without a word)."""
+    import dataclasses
+
+    known = {f.name for f in dataclasses.fields(params_cls)}
+    return {k: v for k, v in values.items() if v is not None or k not in known}
 
 
 def as_the_run_saw_them(seqs: list, config: Mapping[str, Any], lost: Callable[[str], None]) -> list:
