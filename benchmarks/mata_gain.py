@@ -35,7 +35,6 @@ and the wall and CPU seconds of the runs.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import resource
@@ -171,10 +170,13 @@ def run_cli(exp_file: Path, jobs: int) -> None:
 
 
 def read_scores(run_dir: Path) -> dict:
-    s = json.loads((run_dir / "scores.json").read_text())
-    o = s["summary"]["overall"]
-    return {"sr": 100 * o["sr"], "nt2f": 100 * o["nt2f"], "hz": s["frequencies"]["tracker"]["scheduled_hz"],
-            "failed": len(s.get("failures", {}))}
+    """A run's overall NT2F / SR, tracker rate and failures (its scores.json, scored again where
+    it is out of date: ``--reuse`` of folders an older mata-eval scored)."""
+    from mata_eval.score.evaluate import scores_for
+
+    s = scores_for(run_dir)
+    return {"sr": 100 * s.overall.sr, "nt2f": 100 * s.overall.nt2f, "hz": s.frequencies["tracker"].scheduled_hz,
+            "failed": len(s.failures)}
 
 
 def table(results: dict, names: list[str], trackers: list[str]) -> list[str]:

@@ -118,9 +118,12 @@ def evaluate(folder: str | Path | Sequence[str | Path], dataset: str, root: str 
     first = next((m for m in manifests if m), {}) if root is None else {}   # the first run folder of this dataset
     if first:
         values = run_dataset_values(first, values)
+    lost: list[str] = []
     with in_run_cwd(first or None):   # (the run's relative paths; frame 0 for its occlusion augmentation)
         sequences = cls(build_params(cls.Params, defaults_for_none(cls.Params, values), ("dataset",))).sequences()
-        seen = [as_the_run_saw_them(sequences, m.get("config", {}), lambda line: warnings.warn(f"{f}: {line}", stacklevel=3))
+        seen = [as_the_run_saw_them(sequences, m.get("config", {}), lambda line, f=f: lost.append(f"{f}: {line}"))
                 for f, m in zip(folders, manifests)]
+    for line in lost:
+        warnings.warn(line, stacklevel=2)
     scores = [evaluate_results(f, s, profile=profile, layout=layout, dataset=dataset) for f, s in zip(folders, seen)]
     return scores[0] if isinstance(folder, (str, Path)) else scores

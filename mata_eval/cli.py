@@ -244,12 +244,6 @@ def load_dataset(name: str, root: str | None, extra: Mapping[str, Any] | None = 
     return list(cls(params).sequences())
 
 
-def _dataset_named(manifest: dict[str, Any]) -> str | None:
-    """The dataset plugin a run folder's manifest names, or None."""
-    ds = (manifest.get("config") or {}).get("dataset") if isinstance(manifest.get("config"), dict) else None
-    return ds.get("name") if isinstance(ds, dict) and isinstance(ds.get("name"), str) else None
-
-
 def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
     """A dataset's resolved parameters as compared between a run's manifest and an ``eval``:
     None dropped, ``root`` and ``annotations`` made absolute against the folder ``cwd`` they
@@ -284,7 +278,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from .core.params import parse_key_values
     from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
-    from .score.run_dataset import as_the_run_saw_them, manifest_or_nothing, run_dataset_values, run_manifest
+    from .score.run_dataset import (as_the_run_saw_them, dataset_name, manifest_or_nothing, run_dataset_values,
+                                    run_manifest)
 
     resolved = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     for twice in sorted({d for d in resolved if resolved.count(d) > 1}):
@@ -306,12 +301,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
     if args.dataset is None:   # the first run folder names it (QA pass 16b: --dataset was required)
-        named = {d: _dataset_named(manifest_or_nothing(d)) for d in args.results_dirs}
+        named = {d: dataset_name(manifest_or_nothing(d)) for d in args.results_dirs}
         source = next((d for d, name in named.items() if name), None)
         if source is None:
             print(f"error: {'no folder given is' if len(named) > 1 else f'{args.results_dirs[0]} is not'} a mata-eval "
                   "run folder with a readable manifest.json naming its dataset: give --dataset NAME (and --root PATH)",
                   file=sys.stderr)
+            return 2
+        if len(names := sorted({n for n in named.values() if n})) > 1:   # (QA review: scored on the first's, unsaid)
+            print(f"error: these run folders were made on different datasets ({', '.join(names)}); eval scores them "
+                  "against one: give --dataset NAME", file=sys.stderr)
             return 2
         args.dataset = named[source]
         print(f"dataset {args.dataset}, as {Path(source) / 'manifest.json'} names it")
@@ -393,14 +392,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
-
     """After a table: the sequences each scored run has no results for (an interrupted run, a
     results folder short of the dataset; its row averages only the others), its results of no
     sequence of the ``dataset`` (a sequence removed since), the frames it skipped as unreadable
     (``on_bad_frame: skip``: not scored), the sequences run on other ground truth than they are
     scored on, the package versions that differ among its results, and rows scored under
     different metric profiles (their numbers do not compare)."""
-    from .score.evaluate import FREQUENCY_RULE
+    from .run.results import versions_line
+    from .score.evaluate import older_rates
 
     profiles: dict[str, list[str]] = {}
     for scores in runs:
@@ -457,14 +456,15 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
                   f"tracker started from another box, or occluders were placed from other boxes): "
                   f"{', '.join(other[:10])}" + (" ..." if len(other) > 10 else "")
                   + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
-        if scores.frequencies and scores.meta.get("frequency_rule") != FREQUENCY_RULE:   # a scores.json file given
+        if older_rates(scores):   # a scores.json given as a file, or of a folder that cannot be scored here
             print(f"{scores.path}: its block rates (Hz) count frame 0, the initialisation, as an older mata-eval did "
-                  f"(a few tenths of a Hz high): score its results again (mata-eval eval) for today's rates")
+                  f"(off by up to a Hz or so on short sequences): score its results again (mata-eval eval) for "
+                  f"today's rates")
         mixed = scores.meta.get("mixed_versions") or {}
         if mixed:
             print(f"the results{where} were made with different package versions (a run resumed after an upgrade): "
-                  + "; ".join(f"{k} {', '.join(v)}" for k, v in mixed.items())
-                  + f" (manifest.json `made_by` says which made each sequence; --force redoes them all with this one)")
+                  f"{versions_line(mixed)} (manifest.json `made_by` says which made each sequence; --force redoes "
+                  "them all with this one)")
         bad = scores.meta.get("bad_frames") or {}
         if bad:
             print(f"{sum(bad.values())} unreadable frame(s) skipped and not scored (on_bad_frame: skip){where}: "
@@ -1165,7 +1165,8 @@ def main(argv: list[str] | None = None) -> int:
         return exc.exit_status
     except KeyboardInterrupt:
         what = {"run": "finished sequences are saved; rerun the same command to resume",
-                "profile": "no profile written", "export": "an earlier export there is kept, nothing new written",
+                "profile": "no profile written",
+                "export": "an earlier export there is kept, unless its files were being replaced: then export again",
                 }.get(args.command, "stopped before the end")
         print(f"interrupted: {what}", file=sys.stderr)
         return 130

@@ -152,7 +152,7 @@ def test_an_interrupt_says_what_the_command_kept(monkeypatch, capsys):
 
     for command, argv, words in (("profile", ["x.yaml", "--out", "p.json"], "no profile written"),
                                  ("export", ["nanotrack", "--random-weights", "--out", "x"],
-                                  "an earlier export there is kept"),
+                                  "an earlier export there is kept, unless its files were being replaced"),
                                  ("run", ["x.yaml"], "finished sequences are saved; rerun the same command")):
         monkeypatch.setattr(cli, f"cmd_{command}", stopped)
         assert cli.main([command, *argv]) == 130

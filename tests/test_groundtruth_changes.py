@@ -159,9 +159,20 @@ def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_tru
     assert main(["eval", str(run), "--dataset", "folder", "--root", "data"]) == 0   # with the record now
     assert _sr(run)["a"] == 0.0
     _move(workdir, BOX)
-    (workdir / "exp.yaml").unlink()       # a copied folder: its experiment cannot be read, scores.json trusted
+    assert main(["report", str(run)]) == 0   # scored again on the restored box
+    capsys.readouterr()
+    scores = json.loads((run / "scores.json").read_text())
+    scores["meta"].pop("frequency_rule")  # rates of an older mata-eval: scored again while it can be
+    (run / "scores.json").write_text(json.dumps(scores))
     assert main(["report", str(run)]) == 0
-    assert "scored again" not in capsys.readouterr().err and _sr(run)["a"] == 0.0
+    assert "scored again: its scores.json counted frame 0 in its block rates" in capsys.readouterr().err
+    (run / "scores.json").write_text(json.dumps(scores))
+    _move(workdir)
+    (workdir / "exp.yaml").unlink()       # a copied folder: its experiment cannot be read, scores.json trusted
+    assert main(["report", str(run)]) == 0   # (also one of an older rule: QA review, the report failed)
+    out, err = capsys.readouterr()
+    assert "scored again" not in err and _sr(run)["a"] == 1.0
+    assert f"{run}: its block rates (Hz) count frame 0, the initialisation, as an older mata-eval did" in out
 
 
 def test_a_box_the_run_did_not_read_changes_the_scores_not_the_results(workdir, capsys):
@@ -413,7 +424,7 @@ def test_report_follows_the_sequences_the_experiment_lists_now(workdir, capsys):
     capsys.readouterr()
     assert main(["report", str(run)]) == 0
     out, err = capsys.readouterr()
-    assert f"{run}: scored again: the sequences the experiment lists for it changed since its scores.json" in err
+    assert f"{run}: scored again: the sequences of its experiment's dataset changed since its scores.json" in err
     assert "1 result file(s) match no sequence of folder: b (not in the table)" in out
     assert sorted(json.loads((run / "scores.json").read_text())["sequences"]) == ["a"]
     assert main(["report", str(run)]) == 0                      # scored on the list: trusted
@@ -424,5 +435,5 @@ def test_report_follows_the_sequences_the_experiment_lists_now(workdir, capsys):
     listed("[c, b, a]")
     assert main(["report", str(run)]) == 0
     out, err = capsys.readouterr()
-    assert "scored again: the sequences the experiment lists" in err and "1 sequence(s) without results: c" in out
+    assert "scored again: the sequences of its experiment's dataset" in err and "1 sequence(s) without results: c" in out
     assert sorted(json.loads((run / "scores.json").read_text())["sequences"]) == ["a", "b"]

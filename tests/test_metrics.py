@@ -369,3 +369,14 @@ def test_frame_0_the_initialisation_is_left_out_of_both_rates():
     for n in (1, 2):                                           # no interval from frame 1 on: unknown rate
         once = M.block_frequencies({"tracker": ms[:n]}, n, 30.0)["tracker"]
         assert np.isnan(once.scheduled_hz)
+
+
+def test_rates_of_an_older_scores_json_still_read_and_add_up():
+    """A scores.json of an older mata-eval has no `calls`: its wall rate is its starts over its
+    time, and a sum with a newer entry keeps the older reading (no `calls` count to add)."""
+    old = M.BlockFrequency.from_dict({"starts": 10, "camera_seconds": 1.0, "total_ms": 250.0})
+    new = M.BlockFrequency(9, 0.9, 200.0, 10)
+    assert old.wall_hz == pytest.approx(40.0) and new.wall_hz == pytest.approx(50.0)
+    both = old + new
+    assert both.scheduled_hz == pytest.approx(19 / 1.9) and both.wall_hz == pytest.approx(1000 * 19 / 450)
+    assert M.BlockFrequency.from_dict(new.to_dict()) == new

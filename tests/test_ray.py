@@ -207,3 +207,22 @@ def test_ctrl_c_cancels_the_tasks_on_the_cluster(cluster, tmp_path, handler):
     # Killed mid-sequence: fewer than the 2 x 4 tracker calls of two finished sequences.
     calls = (tmp_path / "calls").read_text().count("call") if (tmp_path / "calls").exists() else 0
     assert calls < 8
+
+
+def test_nodes_of_other_package_versions_are_refused_before_anything_runs(cluster, tmp_path, monkeypatch):
+    """QA review: a node of other versions failed each task it took in milliseconds, so it took
+    most of them (and under --force replaced good results with failures): one probe per node
+    refuses the run first, naming the node and the package. Here the driver pretends to run
+    another numpy than its node."""
+    from mata_eval.run import results
+    from mata_eval.run.executors import OtherVersions
+
+    real = results.package_versions()
+    monkeypatch.setattr(results, "package_versions", lambda: {**real, "numpy": "0.1"})
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 4, "
+                 "width: 64, height: 48}\ntracker: {name: kcf}\n")
+    with pytest.raises(OtherVersions, match=rf"1 Ray node\(s\) run other package versions than the driver: "
+                                            rf".+ \(numpy {np.__version__} there, 0.1 on the driver\).*nothing ran"):
+        run_experiment(load_experiment(p), executor=RayExecutor(), progress=False, log=_quiet)
+    assert not list((tmp_path / "out").rglob("*.txt"))

@@ -763,3 +763,14 @@ def test_git_commit_is_mata_evals_only(tmp_path):
     (checkout / "__init__.py").write_text("")
     assert results.git_commit(checkout).startswith(
         subprocess.run(["git", "-C", str(checkout), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip())
+
+
+def test_mixed_versions_compare_python_by_its_minor_release_and_name_an_absent_package():
+    """QA review: a Python patch release (which Ray nodes may differ by) was reported as mixed
+    versions, and a package one setup lacks showed as 'None'; a setup without versions (a very
+    old manifest) is not compared."""
+    manifest = {"setups": [{"versions": {"python": "3.11.7", "numpy": "1.0"}}, {"versions": {"python": "3.11.8"}},
+                           {"git_commit": "abc"}], "made_by": {"a": 0, "b": 1, "c": 2}}
+    assert results.mixed_versions(manifest, ["a", "b", "c"]) == {"numpy": ["1.0", "absent"]}
+    assert results.versions_line(results.mixed_versions(manifest, ["a", "b"])) == "numpy 1.0, absent"
+    assert results.mixed_versions(manifest, ["a", "c"]) == {}

@@ -38,7 +38,8 @@ LEGEND = (
              "(IoU 0), over the sequence length; 100 = never lost (paper eq. nt2f)"),
     ("<block> Hz", "e.g. tracker Hz 10.0 (22.5): the protocol ran the block 10 times per second of video "
                    "(camera clock); in parentheses, 1 / its mean wall time per call on this machine (both "
-                   "from frame 1 on: frame 0 initialises the blocks); - : fewer than two calls, no rate"),
+                   "from frame 1 on: frame 0 initialises the blocks); -: no rate (no call, or a single one: no "
+                   "interval)"),
     ("Excl. frames", "frames left out of every metric because their ground truth is empty or missing "
                      "(target fully occluded or out of view, or not annotated)"),
     ("Failed", "sequences that failed to run (<run>/<sequence>.failed.json says why) or whose results cannot be "
@@ -237,7 +238,11 @@ def _key(cfg: Mapping[str, Any]) -> str:
     """What a MATA run shares with its baseline: the configuration without blocks B and C (and
     without the installed plugins' versions: :func:`_same_versions`)."""
     blocks = ("egomotion", "estimator", "feedback", "plugin_versions")
-    return json.dumps({k: v for k, v in cfg.items() if k not in blocks}, sort_keys=True, default=str)
+    shared = {k: v for k, v in cfg.items() if k not in blocks}
+    ds = shared.get("dataset")
+    if isinstance(ds, Mapping) and isinstance(ds.get("sequences"), list):   # the same names in another order: the same
+        shared["dataset"] = {**ds, "sequences": sorted(set(ds["sequences"]), key=str)}   # data (QA review)
+    return json.dumps(shared, sort_keys=True, default=str)
 
 
 def _same_versions(mata: Mapping[str, Any], baseline: Mapping[str, Any]) -> bool:

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+from ..run.results import versions_line
 from ..score.evaluate import RunScores
 from ..score.metrics import DEFAULT_GROUPS
 from .html import html_summary
@@ -482,8 +483,7 @@ def build_table(kind: str, runs: Sequence[PlacedRun]) -> Table:
             t.notes.append(f"{r.name}: {len(r.scores.failures)} failed and {len(r.scores.missing)} missing "
                            f"sequence(s) are not in its means (over {r.scores.summary.overall.n_sequences} sequence(s))")
         if mixed := r.scores.meta.get("mixed_versions"):   # a run resumed after an upgrade
-            t.notes.append(f"{r.name}: its results were made with different package versions ("
-                           + "; ".join(f"{k} {', '.join(v)}" for k, v in mixed.items()) + ")")
+            t.notes.append(f"{r.name}: its results were made with different package versions ({versions_line(mixed)})")
     return t
 
 
@@ -498,9 +498,7 @@ def run_meta(runs: Sequence[PlacedRun]) -> list[str]:
         if not m:
             continue
         made = [(exps, m.get("experiment"))]
-        setups, made_by = results.setup_record(m)   # the setups that made the scored results
-        used = sorted({made_by[n] for n in r.scores.sequences if n in made_by})
-        for setup in [setups[i] for i in used] or [results.setup_identity(m)]:
+        for setup in results.setups_of(m, r.scores.sequences) or [results.setup_identity(m)]:
             made += [(commits, setup.get("git_commit")), (machines, _machine_line(setup.get("machine")))]
         for lst, v in made:
             if v and v not in lst:

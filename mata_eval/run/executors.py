@@ -20,6 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Callable, Iterator, Protocol
 
+from ..core.errors import UserError
 from ..core.processes import die_with_parent
 from . import results, stop
 from .config import Experiment
@@ -243,13 +244,35 @@ class RayExecutor:
 
     def run(self, exp: Experiment, tasks: list[Task], done: Done) -> None:
         ray = self.ray
+        versions = results.package_versions()
+        self._check_nodes(versions)
         remote = ray.remote(num_cpus=1, max_retries=1)(_ray_task)
-        exp_ref, versions = ray.put(exp), results.package_versions()
+        exp_ref = ray.put(exp)
         pending = {remote.remote(exp_ref, task, os.getcwd(), versions): task for task in tasks}
         # a stop signal is taken between two waits: raised inside ray.wait's compiled code it
         # came out as a SystemError traceback, exit status 1
         with stop.deferred():
             self._wait(pending, done)
+
+    def _check_nodes(self, versions: dict[str, str]) -> None:
+        """Refuse the run, naming them, when nodes run other package versions than the driver
+        (QA review: such a node failed every task it took in milliseconds, so it took most of
+        them, and under --force each failure replaced a good result). A probe per alive node,
+        pinned to it; a node that joins later is still checked by each task (:func:`_ray_task`)."""
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        ray = self.ray
+        probe = ray.remote(num_cpus=0)(_node_versions)
+        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote()
+                for n in ray.nodes() if n.get("Alive")]
+        differ = []
+        for node, theirs in ray.get(refs, timeout=120):
+            if line := version_differences(theirs, versions):
+                differ.append(f"{node} ({line})")
+        if differ:
+            raise OtherVersions(f"{len(differ)} Ray node(s) run other package versions than the driver: "
+                                f"{'; '.join(differ)}: install the driver's versions on every node (or its "
+                                "environment with a Ray runtime_env); nothing ran")
 
     def _wait(self, pending: dict, done: Done) -> None:
         ray = self.ray
@@ -277,10 +300,20 @@ class RayExecutor:
                                 f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
 
 
-def _compared(versions: dict[str, str]) -> dict[str, str]:
-    """Package versions as nodes are compared: Python by its minor version (a patch release does
-    not change the numbers)."""
-    return {k: ".".join(v.split(".")[:2]) if k == "python" else v for k, v in versions.items()}
+class OtherVersions(UserError, RuntimeError):
+    """Ray nodes run other package versions than the driver."""
+
+
+def _node_versions() -> tuple[str, dict[str, str]]:
+    return platform.node(), results.package_versions()
+
+
+def version_differences(here: dict[str, str], driver: dict[str, str]) -> str:
+    """``package X there, Y on the driver; ...`` for the packages whose versions differ
+    (:func:`results.comparable_versions`), or nothing."""
+    here, driver = results.comparable_versions(here), results.comparable_versions(driver)
+    return "; ".join(f"{k} {here.get(k, 'absent')} there, {driver.get(k, 'absent')} on the driver"
+                     for k in sorted(set(here) | set(driver)) if here.get(k) != driver.get(k))
 
 
 def _ray_task(exp: Experiment, task: Task, cwd: str, versions: dict[str, str]) -> list[SequenceResult]:
@@ -288,10 +321,7 @@ def _ray_task(exp: Experiment, task: Task, cwd: str, versions: dict[str, str]) -
     there too (a shared file system, or data staged at the same path on every node). A node
     whose package versions differ from the driver's (``versions``: what the manifest records)
     fails the task, saying which: its results would be another setup's, mixed in silently."""
-    here, driver = _compared(results.package_versions()), _compared(versions)
-    differ = "; ".join(f"{k} {here.get(k, 'absent')} there, {driver.get(k, 'absent')} on the driver"
-                       for k in sorted(set(here) | set(driver)) if here.get(k) != driver.get(k))
-    if differ:
+    if differ := version_differences(results.package_versions(), versions):
         return failed(task, f"Ray node {platform.node()} runs other package versions than the driver ({differ}): "
                             "install the driver's versions on every node (or its environment with a Ray "
                             "runtime_env), then rerun to resume")

@@ -348,7 +348,10 @@ def setup_record(manifest: dict) -> tuple[list[dict], dict[str, int]]:
 def record_made_by(run_dir: Path, seq: str, made: bool) -> None:
     """Credit the result of ``seq`` just written (``made``; a failure leaves none) to the setup
     of the run writing it, the one its manifest names (:func:`setup_identity`)."""
-    manifest = read_manifest(run_dir)
+    try:
+        manifest = read_manifest(run_dir)
+    except CorruptFile:   # edited during the run: the record goes, not the run (the next run says so)
+        return
     if manifest is None:   # the folder was emptied during the run: the next write says so (runner.write_result)
         return
     setups, made_by = setup_record(manifest)
@@ -362,17 +365,33 @@ def record_made_by(run_dir: Path, seq: str, made: bool) -> None:
                              "made_by": {k: used.index(v) for k, v in sorted(made_by.items())}})
 
 
+def comparable_versions(versions: dict[str, str]) -> dict[str, str]:
+    """Package versions as two setups are compared: Python by its minor version (a patch release
+    does not change the numbers)."""
+    return {k: ".".join(str(v).split(".")[:2]) if k == "python" else v for k, v in versions.items()}
+
+
+def setups_of(manifest: dict, names: Iterable[str]) -> list[dict]:
+    """The setups that made the results of the sequences ``names`` (:func:`setup_record`), in
+    the order they first ran."""
+    setups, made_by = setup_record(manifest)
+    return [setups[i] for i in sorted({made_by[n] for n in names if n in made_by})]
+
+
 def mixed_versions(manifest: dict, names: Iterable[str]) -> dict[str, list[str]]:
     """Package -> the versions that made the results of the sequences ``names`` of a run folder
-    (in the order the setups first ran), for the packages whose version differs among them (a
-    run resumed after an upgrade: :func:`setup_record`); empty when one setup made them all or
-    there is no record (an older mata-eval)."""
-    setups, made_by = setup_record(manifest)
-    used = sorted({made_by[n] for n in names if n in made_by})
-    versions = [setups[i].get("versions") if isinstance(setups[i].get("versions"), dict) else {} for i in used]
+    (:func:`setups_of`; Python by its minor version), for the packages whose version differs
+    among them (a run resumed after an upgrade); empty when one setup made them all or there is
+    no record (an older mata-eval, a setup without versions)."""
+    versions = [comparable_versions(s["versions"]) for s in setups_of(manifest, names) if isinstance(s.get("versions"), dict)]
     packages = sorted({k for v in versions for k in v})
-    return {k: list(dict.fromkeys(str(v.get(k)) for v in versions)) for k in packages
-            if len({str(v.get(k)) for v in versions}) > 1}
+    seen = {k: list(dict.fromkeys(str(v.get(k, "absent")) for v in versions)) for k in packages}
+    return {k: v for k, v in seen.items() if len(v) > 1}
+
+
+def versions_line(mixed: dict[str, list[str]]) -> str:
+    """``numpy 1.26.4, 2.1.0; opencv ...``: :func:`mixed_versions` for people."""
+    return "; ".join(f"{k} {', '.join(v)}" for k, v in mixed.items())
 
 
 def git_commit(path: Path | None = None) -> str | None:

@@ -449,9 +449,12 @@ def stale_reason(scores: RunScores, run_dir: Path) -> str | None:
     edited = [k for k, sha in recorded.items() if k in finished and results.results_sha256(d, k) != sha]
     if edited:
         return f"the result files of {', '.join(edited[:5])}{' ...' if len(edited) > 5 else ''} changed since"
-    if scores.frequencies and scores.meta.get("frequency_rule") != FREQUENCY_RULE:
-        return "its block rates were computed by an older rule (the initialisation counted) when"
     return None
+
+
+def older_rates(scores: RunScores) -> bool:
+    """Whether the block rates of ``scores`` count frame 0, as a mata-eval before FREQUENCY_RULE did."""
+    return bool(scores.frequencies) and scores.meta.get("frequency_rule") != FREQUENCY_RULE
 
 
 def save_scores(out_dir: Path, scores: RunScores) -> Path:
@@ -492,8 +495,10 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
     """``<run>/scores.json``, evaluating the run first when it is a mata-eval run folder whose
     experiment file can still be loaded and it has no scores.json, one that does not cover its
     finished and failed sequences (:func:`stale_reason`), or one scored on ground truth the
-    dataset no longer has (:func:`changed_since_scored`; ``log`` says so); otherwise
-    :class:`ScoresUnavailable` says what to do."""
+    dataset no longer has or on other sequences than its experiment lists now
+    (:func:`changed_since_scored`; ``log`` says so); otherwise :class:`ScoresUnavailable` says
+    what to do. A scores.json whose only fault is rates of an older rule (:func:`older_rates`)
+    is scored again where it can be, else shown as it is (a copied folder: the table notes it)."""
     d = Path(run_dir).resolve()
     if not d.exists():
         raise FileNotFoundError(f"{run_dir}: no such file or folder")
@@ -508,8 +513,15 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
         if stale is None and manifest is not None:
             changed, stale = changed_since_scored(scores, d, manifest)
         if stale is None and not changed:
-            return scores
-        if stale and stale.startswith(("the result files", "the sequences the experiment", "its block rates")):
+            if manifest is None or not older_rates(scores):
+                return scores
+            try:
+                again = _score_again(d, manifest, "", "")
+            except Exception:   # (a copied folder, its data not here: QA review, the report failed)
+                return scores
+            log(f"{d}: scored again: its {SCORES} counted frame 0 in its block rates, as an older mata-eval did")
+            return again
+        if stale and stale.startswith(("the result files", "the sequences of its experiment")):
             log(f"{d}: scored again: {stale} its {SCORES} was written")
         if changed:
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
@@ -521,6 +533,12 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
                                 f"`mata-eval report DIR` reports it again)")
     what = (f"its {SCORES} is out of date ({stale or 'the annotations of ' + ', '.join(changed[:5]) + ' differ'})"
             if stale or changed else f"no {SCORES}")
+    return _score_again(d, manifest, what, hint)
+
+
+def _score_again(d: Path, manifest: dict, what: str, hint: str) -> RunScores:
+    """Evaluate the run folder ``d`` on its experiment's dataset (:class:`ScoresUnavailable`,
+    starting with ``what``, when that cannot be done here)."""
     from ..run.runner import load_sequences
 
     with results.in_run_cwd(manifest):   # its relative dataset root, not this folder's namesake
@@ -570,7 +588,7 @@ def changed_since_scored(scores: RunScores, run_dir: Path, manifest: dict) -> tu
             names = set(listed) if listed is not None else None if generated else \
                 {s.name for s in base_sequences(spec)}
             scored = set(scores.sequences) | set(scores.missing)   # (a failure of a sequence left out stays)
-            reselected = ("the sequences the experiment lists for it changed since" if names is not None and (
+            reselected = ("the sequences of its experiment's dataset changed since" if names is not None and (
                 names - scored - set(scores.failures) or scored - names) else None)
             if not scores.meta.get("groundtruth") or generated:
                 return [], reselected

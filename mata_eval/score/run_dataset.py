@@ -22,13 +22,19 @@ def manifest_or_nothing(folder: str | Path) -> dict[str, Any]:
         return {}
 
 
+def dataset_name(manifest: Mapping[str, Any]) -> str | None:
+    """The dataset plugin a run folder's manifest names, or None."""
+    config = manifest.get("config")
+    ds = config.get("dataset") if isinstance(config, Mapping) else None
+    return ds.get("name") if isinstance(ds, Mapping) and isinstance(ds.get("name"), str) else None
+
+
 def run_manifest(folder: str | Path, dataset: str) -> dict[str, Any]:
     """A mata-eval run folder's manifest when its dataset is the plugin ``dataset`` (its
     ``config`` the run's resolved configuration); empty otherwise (another layout, another
     dataset, no manifest)."""
     manifest = manifest_or_nothing(folder)
-    ds = (manifest.get("config") or {}).get("dataset")
-    return manifest if isinstance(ds, dict) and ds.get("name") == dataset else {}
+    return manifest if dataset_name(manifest) == dataset else {}
 
 
 def run_dataset_values(manifest: Mapping[str, Any], given: Mapping[str, Any]) -> dict[str, Any]:

@@ -213,7 +213,8 @@ class EOP:
             if "profile" in (getattr(p, f"{b}_hz"), getattr(p, f"{b}_latency")) and \
                     (median := self._block_profile(b).percentiles_s((50,))["50"]) >= 1.0:
                 warnings.warn(RateWarning(f"eop: latency_profile {p.latency_profile}: the {b}'s median latency is "
-                                          f"{median:g} s: profile samples are in seconds (milliseconds divided by 1000)"))
+                                          f"{median:g} s: profile samples are in seconds (if these are milliseconds, "
+                                          "divide them by 1000)"))
 
 
 @hookimpl

@@ -4,8 +4,8 @@ initialised (the tracker's template, a model loaded on first use) and is left ou
 are those of the calls from frame 1 on, the scheduled one the intervals between those calls
 over their span, so a block run every third frame of a 30 fps camera is at 10 Hz whatever the
 sequence's length and however the protocol starts it after frame 0 (counting the frame-0 call
-gave 10.5 Hz on 40 frames; vot_rt's first call at frame 1, then every fourth, gave 9.2 Hz for
-8.9), and the wall-clock one 1 / their mean wall time."""
+gave 10.5 Hz on 40 frames; vot_rt's first call at frame 1, then every fourth, 8.25 Hz for 7.5),
+and the wall-clock one 1 / their mean wall time."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ class BlockFrequency:
     ``starts`` intervals between them spanning ``camera_seconds``. ``scheduled_hz``: intervals
     per second of camera time (what the protocol made it do, paper "Freq."); ``wall_hz``: 1 /
     mean wall-clock time of a call (how fast it could go on this machine); NaN where unknown
-    (no call, or one: no interval)."""
+    (the scheduled rate with fewer than two calls, the wall rate with none)."""
 
     starts: int
     camera_seconds: float
@@ -70,7 +70,8 @@ def block_frequencies(wall_ms: Mapping[str, np.ndarray], n_frames: int, fps: flo
 
 
 def combine_frequencies(per_sequence: Iterable[Mapping[str, BlockFrequency]]) -> dict[str, BlockFrequency]:
-    """Dataset-level frequencies: starts and times summed over sequences (time-weighted)."""
+    """Dataset-level frequencies: intervals, spans, calls and times summed over sequences
+    (time-weighted)."""
     out: dict[str, BlockFrequency] = {}
     for seq in per_sequence:
         for block, f in seq.items():
