@@ -458,8 +458,8 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
                   + f"; rerun them with --force --sequences {' '.join(other)} to run them on this one")
         if older_rates(scores):   # a scores.json given as a file, or of a folder that cannot be scored here
             print(f"{scores.path}: its block rates (Hz) count frame 0, the initialisation, as an older mata-eval did "
-                  f"(off by up to a Hz or so on short sequences): score its results again (mata-eval eval) for "
-                  f"today's rates")
+                  f"(off by up to a Hz or so on short sequences): `mata-eval eval FOLDER` where its data is (or with "
+                  f"--root PATH --output DIR where the data moved) gives today's")
         mixed = scores.meta.get("mixed_versions") or {}
         if mixed:
             print(f"the results{where} were made with different package versions (a run resumed after an upgrade): "

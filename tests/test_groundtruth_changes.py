@@ -171,7 +171,9 @@ def test_a_folder_without_the_record_resumes_and_reports_and_a_copied_one_is_tru
     (workdir / "exp.yaml").unlink()       # a copied folder: its experiment cannot be read, scores.json trusted
     assert main(["report", str(run)]) == 0   # (also one of an older rule: QA review, the report failed)
     out, err = capsys.readouterr()
-    assert "scored again" not in err and _sr(run)["a"] == 1.0
+    assert "scored again:" not in err and _sr(run)["a"] == 1.0
+    assert f"{run}: its block rates (Hz) count frame 0, as an older mata-eval did; not scored again here (the " \
+           f"experiment file '{workdir / 'exp.yaml'}' named in its manifest cannot be read)" in err
     assert f"{run}: its block rates (Hz) count frame 0, the initialisation, as an older mata-eval did" in out
 
 
@@ -237,6 +239,15 @@ def test_a_report_does_not_build_a_generated_dataset_to_compare_it(tmp_path, mon
     shutil.rmtree(tmp_path / "cache")
     assert main(["report", str(tmp_path / "out" / "exp")]) == 0
     assert not (tmp_path / "cache").exists()
+    # nor for a scores.json whose rates follow an older rule (QA pass 16d: the suite was rendered for them)
+    path = tmp_path / "out" / "exp" / "scores.json"
+    scores = json.loads(path.read_text())
+    scores["meta"].pop("frequency_rule")
+    path.write_text(json.dumps(scores))
+    capsys.readouterr()
+    assert main(["report", str(tmp_path / "out" / "exp")]) == 0
+    assert not (tmp_path / "cache").exists()
+    assert "not scored again here (its dataset is generated, and not rendered again" in capsys.readouterr().err
 
 
 def test_the_record_outlives_an_absent_sequence_and_judges_only_the_selected_ones(workdir, capsys):
@@ -437,3 +448,10 @@ def test_report_follows_the_sequences_the_experiment_lists_now(workdir, capsys):
     out, err = capsys.readouterr()
     assert "scored again: the sequences of its experiment's dataset" in err and "1 sequence(s) without results: c" in out
     assert sorted(json.loads((run / "scores.json").read_text())["sequences"]) == ["a", "b"]
+
+
+def test_report_of_an_experiments_output_folder_points_at_its_run_folders(workdir, capsys):
+    """QA pass 16d: it said "not a mata-eval run folder; run mata-eval eval ... --root PATH"."""
+    assert main(["report", str(workdir / "out")]) == 2
+    assert f"{workdir / 'out'}: no scores.json and no manifest.json: it holds run folders; report them " \
+           f"(`mata-eval report {workdir / 'out'}/*`" in capsys.readouterr().err

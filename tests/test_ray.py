@@ -226,3 +226,19 @@ def test_nodes_of_other_package_versions_are_refused_before_anything_runs(cluste
                                             rf".+ \(numpy {np.__version__} there, 0.1 on the driver\).*nothing ran"):
         run_experiment(load_experiment(p), executor=RayExecutor(), progress=False, log=_quiet)
     assert not list((tmp_path / "out").rglob("*.txt"))
+
+
+def test_a_node_whose_versions_cannot_be_read_is_named_not_a_traceback(cluster, tmp_path, monkeypatch):
+    """QA pass 16d: a probe that raised on a node (no mata-eval there, a node lost) ended the run
+    in a traceback."""
+    from mata_eval.run import executors
+
+    def broken():
+        raise ModuleNotFoundError("No module named 'mata_eval'")
+
+    monkeypatch.setattr(executors, "_node_versions", broken)
+    p = tmp_path / "exp.yaml"
+    p.write_text(f"output: {tmp_path / 'out'}\ndataset: {{name: synthetic, n_sequences: 1, n_frames: 4, "
+                 "width: 64, height: 48}\ntracker: {name: kcf}\n")
+    with pytest.raises(executors.OtherVersions, match=r"its versions could not be read: .*No module named 'mata_eval'"):
+        run_experiment(load_experiment(p), executor=RayExecutor(), progress=False, log=_quiet)

@@ -166,12 +166,12 @@ def test_a_profile_measured_with_another_tracker_is_named(tmp_path, monkeypatch,
     exp.write_text(exp.read_text().replace("tracker_hz: 10", "tracker_hz: profile"))
     kcf = load_experiment(exp).runs[0].resolved["tracker"]
     first = sorted(k for k in kcf if k != "name")[0]
-    # not a parameter one side leaves unset (added since, a default resolved elsewhere) nor a path
-    # given another way (QA pass 16c: the shipped profiles warned 24 times of those)
-    unset = ({**kcf, "added_since": 3, first: None}, None)
-    for record, words in ((kcf, None), unset, ({**kcf, first: "/models/x.onnx"}, None),
-                          ({**kcf, first: "other"}, f"measured with other tracker parameters "
-                                                    f"({first}: 'other' then, {kcf[first]!r} now)")):
+    # not a parameter the profile does not record (added since: QA pass 16c, the shipped profiles
+    # warned 24 times of those); the value rules: test_profile_parameters_compare_as_timing_does
+    cases = ((kcf, None), ({k: v for k, v in kcf.items() if k != first}, None),
+             ({**kcf, first: "other"}, f"measured with other tracker parameters ({first}: 'other' then, "
+                                       f"{kcf[first]!r} now)"))
+    for record, words in cases:
         write_profile(profile_from_samples({"tracker": [0.1, 0.1]}, {"run": {"tracker": record}}), profile)
         assert main(["validate", str(exp)]) == 0
         out = capsys.readouterr().out
@@ -219,3 +219,28 @@ def test_a_profile_in_milliseconds_is_warned_of(tmp_path):
     eop = EOP(EOP.Params(tracker_hz="profile", tracker_latency="profile", latency_profile=str(path)))
     with pytest.warns(RateWarning, match=r"the tracker's median latency is 60 s: profile samples are in seconds"):
         eop.timing(30.0)
+
+
+def test_profile_parameters_compare_as_timing_does():
+    """A null reads as the parameter's default on both sides and a file by its name (the same
+    model file named another way is no difference), but a null against a set value and another
+    file name are (QA pass 16d: both were skipped, so a profile of another model file or with
+    a second LK pass passed unsaid)."""
+    from dataclasses import dataclass
+    from types import SimpleNamespace
+
+    from mata_eval.run.runner import _comparable
+
+    @dataclass(frozen=True)
+    class Params:
+        model: str | None = None
+        fb_threshold: float | None = None
+        win: int = 11
+
+    block = lambda **p: SimpleNamespace(name="b", cls=SimpleNamespace(Params=Params), params=Params(**p))  # noqa: E731
+    same = lambda was, **now: (lambda a, b: a == b)(*_comparable({"name": "b", **was}, block(**now)))  # noqa: E731
+    assert same({"win": None}, win=11)                                       # null: the default
+    assert same({"model": "../../data/models/x.onnx"}, model="/data/models/x.onnx")
+    assert not same({"model": "/data/models/x.onnx"}, model="/data/models/y.onnx")
+    assert not same({"fb_threshold": None}, fb_threshold=1.0)                 # a second LK pass
+    assert same({"added_since": 3}, win=11)                                   # the profile does not record it

@@ -263,10 +263,17 @@ class RayExecutor:
 
         ray = self.ray
         probe = ray.remote(num_cpus=0)(_node_versions)
-        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote()
-                for n in ray.nodes() if n.get("Alive")]
+        refs = {n.get("NodeManagerAddress", n["NodeID"]): probe.options(
+            scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote()
+            for n in ray.nodes() if n.get("Alive")}
         differ = []
-        for node, theirs in ray.get(refs, timeout=120):
+        for address, ref in refs.items():
+            try:
+                node, theirs = ray.get(ref, timeout=120)
+            except Exception as exc:   # (QA pass 16d: a node without mata-eval was a traceback)
+                differ.append(f"{address} (its versions could not be read: {type(exc).__name__}: "
+                              f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else ''})")
+                continue
             if line := version_differences(theirs, versions):
                 differ.append(f"{node} ({line})")
         if differ:

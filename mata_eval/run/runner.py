@@ -24,7 +24,7 @@ from tqdm import tqdm
 from ..core.errors import Interrupted, UserError
 from ..core.sequence import Sequence
 from . import results
-from .config import Experiment, RunSpec, config_change, without_selection
+from .config import Experiment, PluginBlock, RunSpec, config_change, without_selection
 from .executors import Executor, LocalExecutor
 from .preflight import random_weights, unknown_sequences_line
 from .scheduler import RateWarning
@@ -342,24 +342,29 @@ def profile_warnings(spec: RunSpec) -> list[str]:
         if was["name"] != block.name:
             out.append(f"the {key} rate/latency comes from {path}, measured with {key} {was['name']}, not this "
                        f"run's {block.name}: measure one with this run's blocks (mata-eval profile)")
-        elif change := config_change(*_set_in_both(was, spec.resolved[key])):   # (QA pass 16b: tensorrt, unsaid)
+        elif change := config_change(*_comparable(was, block)):   # (QA pass 16b: tensorrt, unsaid)
             out.append(f"the {key} rate/latency comes from {path}, measured with other {key} parameters "
                        f"({change}): measure one with this run's blocks (mata-eval profile)")
     return out
 
 
-def _set_in_both(was: dict[str, Any], now: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    """The parameters of a profiled block and of the run's that both set, paths aside: one
-    absent or null on a side is a parameter added since, or a default resolved elsewhere (the
-    shipped profiles warned 24 times of those), and a model file is named relative to another
-    folder, absolute, or found through an environment variable (the manifests record its
-    sha256)."""
-    def kept(k: str) -> bool:
-        a, b = was.get(k), now.get(k)
-        return a is not None and b is not None and not any(isinstance(v, str) and ("/" in v or "\\" in v) for v in (a, b))
+def _comparable(was: dict[str, Any], block: PluginBlock) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A profiled block's recorded parameters and the run's, as they compare for timing: only the
+    parameters the profile records (one added since is not there: the shipped profiles warned 24
+    times of those), null read as the parameter's default on both sides, and a file by its name
+    (a model file named relative to another folder, absolutely, or through an environment
+    variable is the same file; the manifests record its sha256)."""
+    defaults = {f.name: None if f.default is dataclasses.MISSING else f.default
+                for f in dataclasses.fields(block.cls.Params)} if dataclasses.is_dataclass(getattr(block.cls, "Params", None)) else {}
+    now = {"name": block.name, **dataclasses.asdict(block.params)}
 
-    keys = [k for k in was if k in now and kept(k)]
-    return {k: was[k] for k in keys}, {k: now[k] for k in keys}
+    def value(params: dict[str, Any], k: str) -> Any:
+        v = params.get(k)
+        v = defaults.get(k) if v is None else v
+        return Path(v).name if isinstance(v, str) and ("/" in v or "\\" in v) else v
+
+    keys = [k for k in was if k in now]
+    return {k: value(was, k) for k in keys}, {k: value(now, k) for k in keys}
 
 
 def protocol_warnings(spec: RunSpec) -> list[str]:

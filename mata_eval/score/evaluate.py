@@ -516,8 +516,13 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
             if manifest is None or not older_rates(scores):
                 return scores
             try:
+                with results.in_run_cwd(manifest):
+                    if hasattr(_run_spec(d, manifest, "", "").dataset.cls, "check"):
+                        raise ScoresUnavailable("its dataset is generated, and not rendered again for the rates alone")
                 again = _score_again(d, manifest, "", "")
-            except Exception:   # (a copied folder, its data not here: QA review, the report failed)
+            except Exception as exc:   # (a copied folder, its data not here: QA review, the report failed)
+                log(f"{d}: its block rates (Hz) count frame 0, as an older mata-eval did; not scored again here "
+                    f"({str(exc).strip().rstrip(';') or type(exc).__name__}); the numbers are as they were")
                 return scores
             log(f"{d}: scored again: its {SCORES} counted frame 0 in its block rates, as an older mata-eval did")
             return again
@@ -527,6 +532,9 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
             log(f"{d}: scored again against the experiment's annotations: those of {', '.join(changed[:5])}"
                 f"{' ...' if len(changed) > 5 else ''} differ from the ones its {SCORES} was scored on")
     hint = (f"run `mata-eval eval {d} --dataset NAME --root PATH` to score it")
+    if manifest is None and any(d.glob(f"*/{results.MANIFEST}")):   # an experiment's output folder
+        raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json: it holds run folders; report them "
+                                f"(`mata-eval report {d}/*`, or `--experiment EXP.yaml`)")
     if manifest is None:   # another toolkit's results: eval keeps no scores.json there unless told where
         raise ScoresUnavailable(f"{d}: no {SCORES} and no manifest.json (not a mata-eval run folder); run `mata-eval "
                                 f"eval {d} --dataset NAME --root PATH` to score it (with --output DIR, then "
