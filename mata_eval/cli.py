@@ -396,8 +396,9 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     results folder short of the dataset; its row averages only the others), its results of no
     sequence of the ``dataset`` (a sequence removed since), the frames it skipped as unreadable
     (``on_bad_frame: skip``: not scored), the sequences run on other ground truth than they are
-    scored on, the package versions that differ among its results, and rows scored under
-    different metric profiles (their numbers do not compare)."""
+    scored on, the package versions that differ among its results, the warnings the runs
+    recorded when they ran, and rows scored under different metric profiles (their numbers do
+    not compare)."""
     from .run.results import versions_line
     from .score.evaluate import older_rates
 
@@ -407,6 +408,12 @@ def _print_incomplete(runs: Sequence, dataset: str | None = None) -> None:
     if len(profiles) > 1:
         print("these rows use different metric profiles, so their numbers do not compare: "
               + "; ".join(f"{p}: {', '.join(names)}" for p, names in profiles.items()))
+    warned: dict[str, list[str]] = {}   # (the warnings `run` printed, kept in each manifest)
+    for scores in runs:
+        for line in scores.meta.get("run_warnings") or []:
+            warned.setdefault(line, []).append(scores.name)
+    for line, names in warned.items():
+        print(f"warning recorded when {', '.join(names[:5])}{' ...' if len(names) > 5 else ''} ran: {line}")
     datasets: dict[str, list[str]] = {}
     for scores in runs:
         if scores.meta.get("dataset"):   # (older scores.json files of foreign folders have none)

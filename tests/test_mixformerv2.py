@@ -469,7 +469,7 @@ def test_a_run_records_its_checkpoint_and_refuses_results_of_another(tmp_path, m
         run_experiment(load_experiment(exp_file), **quiet)
 
 
-def test_a_run_of_random_weights_says_so_in_its_manifest(tmp_path):
+def test_a_run_of_random_weights_says_so_in_its_manifest(tmp_path, capsys):
     """QA pass 16c: the random-weights warning was printed, not kept with the run."""
     import json
 
@@ -482,8 +482,12 @@ def test_a_run_of_random_weights_says_so_in_its_manifest(tmp_path):
                         "tracker: {name: mixformerv2, threads: 1, random_weights: true}\n")
     run_experiment(load_experiment(exp_file), jobs=1, progress=False, log=lambda s: None)
     warnings = json.loads((tmp_path / "out" / "exp" / "manifest.json").read_text())["warnings"]
-    assert warnings == ["tracker mixformerv2 (run exp): random_weights: true, so its scores measure timing and "
-                        "plumbing, not tracking"]
+    line = "tracker mixformerv2 (run exp): random_weights: true, so its scores measure timing and plumbing, not tracking"
+    assert warnings == [line]
+    from mata_eval import cli   # and a later report says it again (QA pass 16d: nothing read it back)
+
+    assert cli.main(["report", str(tmp_path / "out" / "exp")]) == 0
+    assert f"warning recorded when exp ran: {line}" in capsys.readouterr().out
 
 
 def test_model_files_of_each_configuration(tmp_path, monkeypatch):

@@ -379,7 +379,9 @@ def evaluate_results(
         # the result files scored (a report scores the run again when one was edited since)
         "results_sha256": {k: results.results_sha256(d, k) for k in list(per_seq) + list(unscorable)
                            if (d / f"{k}.txt").is_file()} if layout == "mata" else {},
-        "frequency_rule": FREQUENCY_RULE,   # (scores.json of an older rule are scored again: stale_reason)
+        "frequency_rule": FREQUENCY_RULE,   # (scores.json of an older rule are scored again: scores_for)
+        # what the run warned of when it ran (random weights, a profile of other blocks, off-grid rates)
+        "run_warnings": list(manifest.get("warnings") or []),
         # packages whose version differs among the setups that made the scored results (a resume after an upgrade)
         "mixed_versions": results.mixed_versions(manifest, per_seq),
         # sequences whose tracker results were made on other ground truth (the manifest's record)
