@@ -563,7 +563,8 @@ def _without_report_folders(run_dirs: Sequence[str]) -> list[str]:
 
     skipped = [d for d in run_dirs if is_plots(d)]
     if skipped:
-        print(f"skipped {', '.join(skipped)}: the plots `mata-eval run` writes beside the runs, not a run")
+        print(f"skipped {', '.join(skipped)}: the plots `mata-eval run` writes beside the runs, not a run",
+              file=sys.stderr)   # (not into a table written to stdout: report --format csv > file)
     return [d for d in run_dirs if d not in skipped]
 
 

@@ -345,9 +345,10 @@ def test_per_sequence_comparison_cli(tmp_path, capsys):
     (plots / "success.png").write_bytes(b"")
     capsys.readouterr()
     assert cli.main(["report", str(a), str(plots), str(b)]) == 0
-    text = capsys.readouterr().out
-    assert f"skipped {plots}: the plots `mata-eval run` writes beside the runs, not a run" in text
-    assert [line.split()[0] for line in text.splitlines()[3:5]] == ["a", "b"]   # both runs, in order
+    text, err = capsys.readouterr()
+    # on stderr: `report ... --format csv > file` got it as the CSV's first line (QA pass 16e)
+    assert f"skipped {plots}: the plots `mata-eval run` writes beside the runs, not a run" in err
+    assert [line.split()[0] for line in text.splitlines()[2:4]] == ["a", "b"]   # both runs, in order
 
 
 def test_ablation_with_two_trackers_groups_rows_by_tracker(tmp_path):

@@ -223,9 +223,10 @@ def test_a_profile_in_milliseconds_is_warned_of(tmp_path):
 
 def test_profile_parameters_compare_as_timing_does():
     """A null reads as the parameter's default on both sides and a file by its name (the same
-    model file named another way is no difference), but a null against a set value and another
-    file name are (QA pass 16d: both were skipped, so a profile of another model file or with
-    a second LK pass passed unsaid)."""
+    model file named another way, or found through an environment variable on one side, is no
+    difference), but a null against a set value and another file name are (QA pass 16d: both
+    were skipped, so a profile of another model file or with a second LK pass passed unsaid;
+    QA pass 16e: a file found through $MATA_SHARED_DATA, a Windows path, warned)."""
     from dataclasses import dataclass
     from types import SimpleNamespace
 
@@ -244,3 +245,22 @@ def test_profile_parameters_compare_as_timing_does():
     assert not same({"model": "/data/models/x.onnx"}, model="/data/models/y.onnx")
     assert not same({"fb_threshold": None}, fb_threshold=1.0)                 # a second LK pass
     assert same({"added_since": 3}, win=11)                                   # the profile does not record it
+    assert same({"model": "/data/models/x.onnx"}) and same({"model": None}, model="/data/models/x.onnx")
+    assert same({"model": "C:\\models\\x.onnx"}, model="/data/models/x.onnx")
+
+
+def test_profile_parameters_compare_as_their_preset_resolves_them(tmp_path):
+    """QA pass 16e: a null that the estimator's preset resolves showed as "None now", and a run
+    spelling out its preset's value warned against a profile that left it null."""
+    from types import SimpleNamespace
+
+    from mata_eval.core.params import build_params
+    from mata_eval.run.runner import _comparable
+    from mata_eval_plugins.estimators.homography_ekf import HomographyEKF
+
+    block = lambda **p: SimpleNamespace(name="homography_ekf", cls=HomographyEKF,  # noqa: E731
+                                        params=build_params(HomographyEKF.Params, p))
+    resolved = build_params(HomographyEKF.Params, {}).resolved()
+    assert _comparable({"name": "homography_ekf", "delay": None}, block(delay=resolved.delay)) == ({}, {})
+    assert _comparable({"name": "homography_ekf", "delay": "ignore"}, block()) == (
+        {"delay": "ignore"}, {"delay": resolved.delay})

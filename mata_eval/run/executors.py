@@ -263,23 +263,28 @@ class RayExecutor:
 
         ray = self.ray
         probe = ray.remote(num_cpus=0)(_node_versions)
-        refs = {n.get("NodeManagerAddress", n["NodeID"]): probe.options(
-            scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote()
-            for n in ray.nodes() if n.get("Alive")}
-        differ = []
-        for address, ref in refs.items():
+        nodes = [n for n in ray.nodes() if n.get("Alive")]   # (by node id: nodes may share an address)
+        refs = {probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False)).remote():
+                f"{n.get('NodeManagerAddress', '?')} ({n['NodeID'][:8]})" for n in nodes}
+        ready, late = ray.wait(list(refs), num_returns=len(refs), timeout=120)   # (all at once)
+        differ, unread = [], [f"{refs[r]}: no answer in 120 s" for r in late]
+        for ref in ready:
             try:
-                node, theirs = ray.get(ref, timeout=120)
+                node, theirs = ray.get(ref)
             except Exception as exc:   # (QA pass 16d: a node without mata-eval was a traceback)
-                differ.append(f"{address} (its versions could not be read: {type(exc).__name__}: "
-                              f"{str(exc).strip().splitlines()[-1] if str(exc).strip() else ''})")
+                lines = str(exc).strip().splitlines()
+                unread.append(f"{refs[ref]}: {lines[-1] if lines else type(exc).__name__}")
                 continue
             if line := version_differences(theirs, versions):
                 differ.append(f"{node} ({line})")
-        if differ:
-            raise OtherVersions(f"{len(differ)} Ray node(s) run other package versions than the driver: "
-                                f"{'; '.join(differ)}: install the driver's versions on every node (or its "
-                                "environment with a Ray runtime_env); nothing ran")
+        if differ or unread:
+            raise OtherVersions("; ".join(
+                ([f"{len(differ)} Ray node(s) run other package versions than the driver: {'; '.join(differ)}"]
+                 if differ else [])
+                + ([f"the package versions of {len(unread)} Ray node(s) could not be read: {'; '.join(unread)}"]
+                   if unread else []))
+                + ": install the driver's versions on every node (or its environment with a Ray runtime_env); "
+                  "nothing ran")
 
     def _wait(self, pending: dict, done: Done) -> None:
         ray = self.ray

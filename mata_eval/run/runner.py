@@ -351,20 +351,45 @@ def profile_warnings(spec: RunSpec) -> list[str]:
 def _comparable(was: dict[str, Any], block: PluginBlock) -> tuple[dict[str, Any], dict[str, Any]]:
     """A profiled block's recorded parameters and the run's, as they compare for timing: only the
     parameters the profile records (one added since is not there: the shipped profiles warned 24
-    times of those), null read as the parameter's default on both sides, and a file by its name
-    (a model file named relative to another folder, absolutely, or through an environment
-    variable is the same file; the manifests record its sha256)."""
-    defaults = {f.name: None if f.default is dataclasses.MISSING else f.default
-                for f in dataclasses.fields(block.cls.Params)} if dataclasses.is_dataclass(getattr(block.cls, "Params", None)) else {}
-    now = {"name": block.name, **dataclasses.asdict(block.params)}
+    times of those), each side's values as its preset resolves them (a null is the preset's or
+    the parameter's default), and files by name; a file on one side only (the other finds it
+    through an environment variable), or a folder, is not compared (the manifests record the
+    sha256 of what was read)."""
+    mine, theirs = _effective({"name": block.name, **dataclasses.asdict(block.params)}, block), _effective(was, block)
 
-    def value(params: dict[str, Any], k: str) -> Any:
-        v = params.get(k)
-        v = defaults.get(k) if v is None else v
-        return Path(v).name if isinstance(v, str) and ("/" in v or "\\" in v) else v
+    def differ(k: str) -> bool:
+        a, b = theirs.get(k), mine.get(k)
+        if _is_path(a) or _is_path(b):
+            return _is_path(a) and _is_path(b) and not any(Path(v).is_dir() for v in (a, b)) \
+                and _file_name(a) != _file_name(b)
+        return json.dumps(a, sort_keys=True, default=str) != json.dumps(b, sort_keys=True, default=str)
 
-    keys = [k for k in was if k in now]
-    return {k: value(was, k) for k in keys}, {k: value(now, k) for k in keys}
+    keys = [k for k in was if k in mine and differ(k)]
+    return {k: theirs.get(k) for k in keys}, {k: mine.get(k) for k in keys}
+
+
+def _effective(values: dict[str, Any], block: PluginBlock) -> dict[str, Any]:
+    """``values`` (a block's parameters) as its preset resolves them, or as given where they no
+    longer build (a parameter renamed since)."""
+    from ..core.params import build_params
+
+    try:
+        names = {f.name for f in dataclasses.fields(block.cls.Params)}
+        params = build_params(block.cls.Params, {k: v for k, v in values.items() if k in names and v is not None})
+        params = params.resolved() if callable(getattr(params, "resolved", None)) else params
+        return {**values, **dataclasses.asdict(params)}
+    except Exception:
+        return dict(values)
+
+
+def _is_path(v: Any) -> bool:
+    return isinstance(v, str) and ("/" in v or "\\" in v)
+
+
+def _file_name(v: str) -> str:
+    from pathlib import PureWindowsPath
+
+    return PureWindowsPath(v).name if "\\" in v else Path(v).name
 
 
 def protocol_warnings(spec: RunSpec) -> list[str]:
