@@ -304,8 +304,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         named = {d: dataset_name(manifest_or_nothing(d)) for d in args.results_dirs}
         source = next((d for d, name in named.items() if name), None)
         if source is None:
+            outputs = [d for d in named if any(Path(d).glob("*/manifest.json"))]   # an experiment's output folder
             print(f"error: {'no folder given is' if len(named) > 1 else f'{args.results_dirs[0]} is not'} a mata-eval "
-                  "run folder with a readable manifest.json naming its dataset: give --dataset NAME (and --root PATH)",
+                  "run folder with a readable manifest.json naming its dataset: give --dataset NAME (and --root PATH)"
+                  + (f"; {outputs[0]} holds run folders: `mata-eval eval {outputs[0]}/*`" if outputs else ""),
                   file=sys.stderr)
             return 2
         if len(names := sorted({n for n in named.values() if n})) > 1:   # (QA review: scored on the first's, unsaid)

@@ -455,3 +455,5 @@ def test_report_of_an_experiments_output_folder_points_at_its_run_folders(workdi
     assert main(["report", str(workdir / "out")]) == 2
     assert f"{workdir / 'out'}: no scores.json and no manifest.json: it holds run folders; report them " \
            f"(`mata-eval report {workdir / 'out'}/*`" in capsys.readouterr().err
+    assert main(["eval", str(workdir / "out")]) == 2   # eval too (QA pass 16e)
+    assert f"{workdir / 'out'} holds run folders: `mata-eval eval {workdir / 'out'}/*`" in capsys.readouterr().err
