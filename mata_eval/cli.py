@@ -248,11 +248,11 @@ def _dataset_key(params: Mapping[str, Any], cwd: Path) -> dict[str, Any]:
     """A dataset's resolved parameters as compared between a run's manifest and an ``eval``:
     None dropped, ``root`` and ``annotations`` made absolute against the folder ``cwd`` they
     are relative to, values as JSON has them."""
+    from .run.config import as_a_set
+
     out = {k: str((cwd / v).resolve()) if k in ("root", "annotations") and isinstance(v, str) else v
            for k, v in params.items() if v is not None}
-    if isinstance(out.get("sequences"), list):   # the same names in another order: the same dataset
-        out["sequences"] = sorted(set(out["sequences"]), key=str)
-    return json.loads(json.dumps(out, default=str))
+    return json.loads(json.dumps(as_a_set(out), default=str))
 
 
 def _effective_dataset(name: str, root: str | None, values: Mapping[str, Any], cwd: Path) -> dict[str, Any] | None:
@@ -278,8 +278,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from .core.params import parse_key_values
     from .report.overview import distinct_names, render_table
     from .score.evaluate import detect_layout, evaluate_results, evaluate_run, save_scores
-    from .score.run_dataset import (as_the_run_saw_them, dataset_name, manifest_or_nothing, run_dataset_values,
-                                    run_manifest)
+    from .score.run_dataset import as_the_run_saw_them, dataset_name, manifest_or_nothing, run_dataset_values
 
     resolved = [str(Path(d).resolve()) for d in args.results_dirs]   # (the folder may change below)
     for twice in sorted({d for d in resolved if resolved.count(d) > 1}):
@@ -300,8 +299,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --set: {exc}", file=sys.stderr)
         return 2
+    read = {d: manifest_or_nothing(d) for d in args.results_dirs}   # each read once
     if args.dataset is None:   # the first run folder names it (QA pass 16b: --dataset was required)
-        named = {d: dataset_name(manifest_or_nothing(d)) for d in args.results_dirs}
+        named = {d: dataset_name(m) for d, m in read.items()}
         source = next((d for d, name in named.items() if name), None)
         if source is None:
             outputs = [d for d in named if any(Path(d).glob("*/manifest.json"))]   # an experiment's output folder
@@ -320,7 +320,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     run_cwd = contextlib.nullcontext   # a factory: each `with` needs its own
     values_cwd = Path.cwd()   # what the dataset's relative paths are relative to
     try:
-        manifests = {d: run_manifest(d, args.dataset) for d in args.results_dirs}   # each read once
+        manifests = {d: m if dataset_name(m) == args.dataset else {} for d, m in read.items()}   # (of this dataset)
         # the first run folder of this dataset (QA pass 16a: a first folder of another dataset hid it)
         source = next((d for d in args.results_dirs if manifests[d]), args.results_dirs[0])
         first = manifests[source]

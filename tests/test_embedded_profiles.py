@@ -3,18 +3,13 @@ device's timing profile (hand-written frames.csv files)."""
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
+
+from conftest import benchmark
 
 
 def _module():
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "embedded_profiles.py"
-    spec = importlib.util.spec_from_file_location("embedded_profiles", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return benchmark("embedded_profiles")
 
 
 def test_tracker_wall_times_leave_out_the_initialisation_and_frames_without_a_call(tmp_path):

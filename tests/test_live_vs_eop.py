@@ -4,20 +4,14 @@ protocols have (QA pass 16b: with some runs missing, means over different rows w
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import benchmark
 
 
 @pytest.fixture(scope="module")
 def live_vs_eop():
-    spec = importlib.util.spec_from_file_location("live_vs_eop", ROOT / "benchmarks" / "live_vs_eop.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark("live_vs_eop")
 
 
 def test_the_ratio_is_over_the_rows_both_protocols_have(live_vs_eop):

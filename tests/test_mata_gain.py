@@ -3,23 +3,18 @@ changes over the starts, checked against a hand-built dataset and hand-computed 
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import benchmark
 from mata_eval.data.datasets.folder import FolderDataset
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def mata_gain():
-    spec = importlib.util.spec_from_file_location("mata_gain", ROOT / "benchmarks" / "mata_gain.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark("mata_gain")
 
 
 def folder_sequences(root: Path):

@@ -238,10 +238,11 @@ def _key(cfg: Mapping[str, Any]) -> str:
     """What a MATA run shares with its baseline: the configuration without blocks B and C (and
     without the installed plugins' versions: :func:`_same_versions`)."""
     blocks = ("egomotion", "estimator", "feedback", "plugin_versions")
+    from ..run.config import as_a_set
+
     shared = {k: v for k, v in cfg.items() if k not in blocks}
-    ds = shared.get("dataset")
-    if isinstance(ds, Mapping) and isinstance(ds.get("sequences"), list):   # the same names in another order: the same
-        shared["dataset"] = {**ds, "sequences": sorted(set(ds["sequences"]), key=str)}   # data (QA review)
+    if isinstance(shared.get("dataset"), Mapping):
+        shared["dataset"] = as_a_set(shared["dataset"])
     return json.dumps(shared, sort_keys=True, default=str)
 
 

@@ -158,6 +158,13 @@ def without_selection(resolved: Mapping[str, Any]) -> dict[str, Any]:
     return {**resolved, "dataset": {k: v for k, v in dataset.items() if k != "sequences"}}
 
 
+def as_a_set(dataset: Mapping[str, Any]) -> dict[str, Any]:
+    """A dataset block whose ``sequences`` list reads as the set of names it is: the same names
+    in another order select the same data (eval's run-own-dataset test, MATA/baseline pairing)."""
+    names = dataset.get("sequences")
+    return {**dataset, "sequences": sorted(set(names), key=str)} if isinstance(names, list) else dict(dataset)
+
+
 @dataclasses.dataclass(frozen=True)
 class Experiment:
     name: str

@@ -283,8 +283,7 @@ class RayExecutor:
                  if differ else [])
                 + ([f"the package versions of {len(unread)} Ray node(s) could not be read: {'; '.join(unread)}"]
                    if unread else []))
-                + ": install the driver's versions on every node (or its environment with a Ray runtime_env); "
-                  "nothing ran")
+                + f": {INSTALL_THE_DRIVERS}; nothing ran")
 
     def _wait(self, pending: dict, done: Done) -> None:
         ray = self.ray
@@ -312,6 +311,10 @@ class RayExecutor:
                                 f"{type(exc).__name__}: {str(exc).splitlines()[0]}")
 
 
+#: what to do about a node of other package versions than the driver's
+INSTALL_THE_DRIVERS = "install the driver's versions on every node (or its environment with a Ray runtime_env)"
+
+
 class OtherVersions(UserError, RuntimeError):
     """Ray nodes run other package versions than the driver."""
 
@@ -335,8 +338,7 @@ def _ray_task(exp: Experiment, task: Task, cwd: str, versions: dict[str, str]) -
     fails the task, saying which: its results would be another setup's, mixed in silently."""
     if differ := version_differences(results.package_versions(), versions):
         return failed(task, f"Ray node {platform.node()} runs other package versions than the driver ({differ}): "
-                            "install the driver's versions on every node (or its environment with a Ray "
-                            "runtime_env), then rerun to resume")
+                            f"{INSTALL_THE_DRIVERS}, then rerun to resume")
     if os.path.isdir(cwd):
         os.chdir(cwd)
     one_thread_per_process()

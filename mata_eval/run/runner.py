@@ -389,7 +389,7 @@ def _is_path(v: Any) -> bool:
 def _file_name(v: str) -> str:
     from pathlib import PureWindowsPath
 
-    return PureWindowsPath(v).name if "\\" in v else Path(v).name
+    return PureWindowsPath(v).name   # (splits on / and \\ alike: a profile written on either system)
 
 
 def protocol_warnings(spec: RunSpec) -> list[str]:

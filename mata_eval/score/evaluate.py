@@ -518,10 +518,7 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
             if manifest is None or not older_rates(scores):
                 return scores
             try:
-                with results.in_run_cwd(manifest):
-                    if hasattr(_run_spec(d, manifest, "", "").dataset.cls, "check"):
-                        raise ScoresUnavailable("its dataset is generated, and not rendered again for the rates alone")
-                again = _score_again(d, manifest, "", "")
+                again = _score_again(d, manifest, "", "", render=False)
             except Exception as exc:   # (a copied folder, its data not here: QA review, the report failed)
                 log(f"{d}: its block rates (Hz) count frame 0, as an older mata-eval did; not scored again here "
                     f"({str(exc).strip().rstrip(';') or type(exc).__name__}); the numbers are as they were")
@@ -546,17 +543,21 @@ def scores_for(run_dir: Path, log: Callable[[str], None] = _to_stderr) -> RunSco
     return _score_again(d, manifest, what, hint)
 
 
-def _score_again(d: Path, manifest: dict, what: str, hint: str) -> RunScores:
+def _score_again(d: Path, manifest: dict, what: str, hint: str, render: bool = True) -> RunScores:
     """Evaluate the run folder ``d`` on its experiment's dataset (:class:`ScoresUnavailable`,
-    starting with ``what``, when that cannot be done here)."""
+    starting with ``what``, when that cannot be done here; ``render=False``: nor when the
+    dataset is generated, a plugin with ``check()``: not rendered for block rates alone)."""
     from ..run.runner import load_sequences
 
+    lead = f"{d}: {what}, and" if what else ""   # (none: the caller says what was tried)
     with results.in_run_cwd(manifest):   # its relative dataset root, not this folder's namesake
-        spec = _run_spec(d, manifest, f"{d}: {what}, and", hint)
+        spec = _run_spec(d, manifest, lead, hint)
+        if not render and hasattr(spec.dataset.cls, "check"):
+            raise ScoresUnavailable("its dataset is generated, and not rendered again for the rates alone")
         try:
             return evaluate_run(d, load_sequences(spec), spec.metrics_profile)
         except FrameReadError as exc:   # the occlusion augmentation reads frame 0: frames not on this machine
-            raise ScoresUnavailable(f"{d}: {what}, and it cannot be scored here: {exc}") from None
+            raise ScoresUnavailable(f"{lead} it cannot be scored here: {exc}".strip()) from None
 
 
 def _run_spec(d: Path, manifest: dict, what: str, hint: str) -> RunSpec:
